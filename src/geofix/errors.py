@@ -1,0 +1,26 @@
+"""Exceptions raised by geofix.
+
+Every error a user can cause (a bad map, a bad scenario, a track that leaves the map)
+is a :class:`GeofixError`; the command line prints its message on one line and exits
+non-zero, never a traceback.
+"""
+
+
+class GeofixError(Exception):
+    """Base class of every error geofix raises on purpose."""
+
+
+class MapError(GeofixError):
+    """A map file is missing, unreadable, or has no usable data."""
+
+
+class ConfigError(GeofixError):
+    """A scenario or method specification is invalid."""
+
+
+class TrackOffMapError(GeofixError):
+    """A track (true, indicated or candidate) leaves the map or its valid data."""
+
+
+class MatchError(GeofixError):
+    """A matcher could not produce a fix (for example an all-NaN search window)."""

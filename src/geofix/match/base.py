@@ -1,0 +1,142 @@
+"""What every method consumes and returns: :class:`MatchProblem`, :class:`Fix`, :class:`Matcher`.
+
+Batch matchers (TERCOM, ICCP, GA-SCA, ...) and recursive filters (SITAN, PMF, PF) answer
+the same protocol: ``method.match(problem, rng) -> Fix``. A batch matcher is handed one
+matching window (one leg); a method whose class attribute ``recursive`` is True is handed
+the whole mission at once and returns its estimate at every sample.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar, Protocol, runtime_checkable
+
+import numpy as np
+
+from geofix.maps.grid import Grid
+
+
+@dataclass(frozen=True, eq=False)
+class MatchProblem:
+    """Everything a matcher may use, nothing else (no truth).
+
+    Parameters
+    ----------
+    grid : Grid
+        The prior map.
+    indicated : numpy.ndarray
+        ``(n, 2)`` INS-indicated positions, metres.
+    heading : numpy.ndarray
+        ``(n,)`` INS-indicated heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` sensor footprint offsets in the body frame ``(across, along)``, metres;
+        one row ``[0, 0]`` for single-beam and gravimeter.
+    measured : numpy.ndarray
+        ``(n, b)`` measured field values (same units and sign as the map), NaN = missing.
+    sigma_position : numpy.ndarray
+        ``(n,)`` prior 1-sigma (per axis) of the indicated position error at each sample,
+        metres, predicted by the INS error model from the scenario's datasheet numbers.
+    times : numpy.ndarray
+        ``(n,)`` sample times, seconds.
+    noise_std : float
+        1-sigma of the sensor noise, in map units (as declared by the scenario).
+    sensor : str
+        ``"singlebeam"``, ``"multibeam"`` or ``"gravimeter"``.
+    extras : dict
+        Optional aiding data a method may use (for example ``"dvl_velocity"`` ``(n, 2)``
+        m/s in the local frame).
+    """
+
+    grid: Grid
+    indicated: np.ndarray
+    heading: np.ndarray
+    offsets: np.ndarray
+    measured: np.ndarray
+    sigma_position: np.ndarray
+    times: np.ndarray
+    noise_std: float = 0.0
+    sensor: str = "singlebeam"
+    extras: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return self.indicated.shape[0]
+
+    @property
+    def beams(self) -> int:
+        """Number of beams ``b``."""
+        return self.offsets.shape[0]
+
+    def footprint(self, track: np.ndarray, heading: np.ndarray | None = None) -> tuple:
+        """Map positions of every beam for a track.
+
+        Parameters
+        ----------
+        track : numpy.ndarray
+            ``(..., n, 2)`` vehicle positions, metres.
+        heading : numpy.ndarray, optional
+            ``(..., n)`` headings, radians; the indicated heading by default.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            ``(x, y)`` each of shape ``(..., n, b)``, metres.
+        """
+        psi = self.heading if heading is None else heading
+        return footprint_xy(track, psi, self.offsets)
+
+
+def footprint_xy(track: np.ndarray, heading: np.ndarray, offsets: np.ndarray) -> tuple:
+    """Beam positions ``(x, y)`` of shape ``(..., n, b)`` for vehicle ``track`` ``(..., n, 2)``.
+
+    ``heading`` is ``(..., n)`` radians clockwise from north; ``offsets`` ``(b, 2)`` are
+    body-frame ``(across, along)`` metres (across positive to starboard).
+    """
+    track = np.asarray(track, dtype=float)
+    s = np.sin(heading)[..., None]
+    c = np.cos(heading)[..., None]
+    across = offsets[:, 0]
+    along = offsets[:, 1]
+    # starboard unit vector is (cos psi, -sin psi); forward is (sin psi, cos psi)
+    x = track[..., 0:1] + across * c + along * s
+    y = track[..., 1:2] - across * s + along * c
+    return x, y
+
+
+@dataclass(frozen=True, eq=False)
+class Fix:
+    """A method's answer for one problem.
+
+    Parameters
+    ----------
+    track : numpy.ndarray
+        ``(n, 2)`` estimated positions, metres.
+    covariance : numpy.ndarray or None
+        ``(2, 2)`` covariance of the last position, m^2, when the method can tell.
+    cost : float
+        The method's own final cost (lower is better), for diagnostics.
+    evaluations : int
+        Map look-ups or candidate scores spent, for cost comparisons.
+    ambiguous : bool
+        The method's own integrity flag: True when it cannot tell the fix from another.
+    diagnostics : dict
+        Anything else worth keeping (iterations, per-step covariances ``(n, 2, 2)``, ...).
+    """
+
+    track: np.ndarray
+    covariance: np.ndarray | None = None
+    cost: float = float("nan")
+    evaluations: int = 0
+    ambiguous: bool = False
+    diagnostics: dict = field(default_factory=dict)
+
+
+@runtime_checkable
+class Matcher(Protocol):
+    """A positioning method. Its constructor only stores settings (with defaults)."""
+
+    name: ClassVar[str]
+    recursive: ClassVar[bool]
+
+    def match(self, problem: MatchProblem, rng: np.random.Generator) -> Fix: ...

@@ -1,0 +1,93 @@
+"""A simulated (or replayed) mission: truth, INS indication and measurements."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from geofix.maps.grid import Grid
+from geofix.match.base import MatchProblem
+
+
+@dataclass(frozen=True, eq=False)
+class Trial:
+    """One mission.
+
+    Parameters
+    ----------
+    truth : numpy.ndarray
+        ``(n, 2)`` true positions, metres.
+    true_heading : numpy.ndarray
+        ``(n,)`` true heading, radians clockwise from north.
+    indicated : numpy.ndarray
+        ``(n, 2)`` free-running INS positions (never reset), metres.
+    indicated_heading : numpy.ndarray
+        ``(n,)`` INS heading, radians.
+    times : numpy.ndarray
+        ``(n,)`` sample times, seconds from the start.
+    measured : numpy.ndarray
+        ``(n, b)`` sensor readings (map units), NaN = missing.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres.
+    sigma_position : numpy.ndarray
+        ``(n,)`` prior per-axis 1-sigma of the INS position error, metres.
+    leg_starts : tuple of int
+        Index of the first sample of every leg (``(0,)`` for a single leg).
+    noise_std : float
+        Sensor noise 1-sigma, map units.
+    sensor : str
+        Sensor type.
+    index : int
+        Trial number within its scenario.
+    extras : dict
+        Aiding data (``"dvl_velocity"`` ``(n, 2)`` m/s, ``"raw_measured"`` before lag, ...).
+    """
+
+    truth: np.ndarray
+    true_heading: np.ndarray
+    indicated: np.ndarray
+    indicated_heading: np.ndarray
+    times: np.ndarray
+    measured: np.ndarray
+    offsets: np.ndarray
+    sigma_position: np.ndarray
+    leg_starts: tuple = (0,)
+    noise_std: float = 0.0
+    sensor: str = "singlebeam"
+    index: int = 0
+    extras: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return self.truth.shape[0]
+
+    def leg_slices(self) -> list[slice]:
+        """One slice per leg over the sample axis."""
+        bounds = [*self.leg_starts, self.n]
+        return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+    def problem(self, grid: Grid, part: slice = slice(None), indicated=None) -> MatchProblem:
+        """The :class:`MatchProblem` for samples ``part``.
+
+        ``indicated`` replaces the free INS track for that part (after a reset to an
+        earlier fix, say); by default the free INS track is used.
+        """
+        ind = self.indicated[part] if indicated is None else np.asarray(indicated, dtype=float)
+        extras = {
+            k: (v[part] if isinstance(v, np.ndarray) and v.shape[:1] == (self.n,) else v)
+            for k, v in self.extras.items()
+        }
+        return MatchProblem(
+            grid=grid,
+            indicated=ind,
+            heading=self.indicated_heading[part],
+            offsets=self.offsets,
+            measured=self.measured[part],
+            sigma_position=self.sigma_position[part],
+            times=self.times[part],
+            noise_std=self.noise_std,
+            sensor=self.sensor,
+            extras=extras,
+        )
