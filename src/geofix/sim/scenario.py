@@ -4,7 +4,8 @@ The keys below are a public contract relied on by outside scripts: they may be e
 never renamed. Example::
 
     name: ioap-south-start
-    map: {path: maps/x.nc, variable: z, kind: gravity, region: [-146, -144, 54, 56], resample_m: 100}
+    map: {path: maps/x.nc, variable: z, kind: gravity, region: [-146, -144, 54, 56],
+          resample_m: 100}
     track: {start_cell: [1400, 1500], heading_deg: 70, speed_m_s: 10, interval_s: 20,
             samples: 110, legs: 1, turn_std_deg: 0}
     sensor: {type: gravimeter, noise_std: 1.0}

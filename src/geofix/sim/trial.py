@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,7 +67,7 @@ class Trial:
     def leg_slices(self) -> list[slice]:
         """One slice per leg over the sample axis."""
         bounds = [*self.leg_starts, self.n]
-        return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+        return [slice(a, b) for a, b in itertools.pairwise(bounds)]
 
     def problem(self, grid: Grid, part: slice = slice(None), indicated=None) -> MatchProblem:
         """The :class:`MatchProblem` for samples ``part``.
