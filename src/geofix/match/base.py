@@ -42,6 +42,9 @@ class MatchProblem:
         1-sigma of the sensor noise, in map units (as declared by the scenario).
     sensor : str
         ``"singlebeam"``, ``"multibeam"`` or ``"gravimeter"``.
+    map_error_std : float
+        1-sigma of the map's own error, map units (added to the sensor noise by methods
+        that weigh measurements).
     extras : dict
         Optional aiding data a method may use (for example ``"dvl_velocity"`` ``(n, 2)``
         m/s in the local frame).
@@ -56,6 +59,7 @@ class MatchProblem:
     times: np.ndarray
     noise_std: float = 0.0
     sensor: str = "singlebeam"
+    map_error_std: float = 0.0
     extras: dict = field(default_factory=dict)
 
     @property

@@ -39,6 +39,8 @@ class Trial:
         Sensor noise 1-sigma, map units.
     sensor : str
         Sensor type.
+    map_error_std : float
+        1-sigma of the map error, map units.
     index : int
         Trial number within its scenario.
     extras : dict
@@ -56,6 +58,7 @@ class Trial:
     leg_starts: tuple = (0,)
     noise_std: float = 0.0
     sensor: str = "singlebeam"
+    map_error_std: float = 0.0
     index: int = 0
     extras: dict = field(default_factory=dict)
 
@@ -90,5 +93,6 @@ class Trial:
             times=self.times[part],
             noise_std=self.noise_std,
             sensor=self.sensor,
+            map_error_std=self.map_error_std,
             extras=extras,
         )

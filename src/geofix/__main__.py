@@ -1,0 +1,5 @@
+"""``python -m geofix`` runs the command line."""
+
+from geofix.cli import main
+
+main()

@@ -1,0 +1,191 @@
+"""The ``geofix`` command line: thin -- parse, call the public API, print or write.
+
+Commands: ``demo``, ``run``, ``methods``, ``maps``. ``geofix run`` is a contract relied
+on by outside scripts (flags and JSON keys are kept exactly; they may be extended).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from importlib import resources
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from geofix.errors import GeofixError
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="geofix: terrain- and gravity-aided navigation without GPS.",
+)
+_out = Console()
+_err = Console(stderr=True)
+
+
+def _fail(message: str) -> None:
+    _err.print(f"[bold red]error:[/] {message}", highlight=False)
+    raise typer.Exit(code=2)
+
+
+def _guarded(fn):
+    """Turn a GeofixError into one clear line on stderr and exit code 2."""
+    try:
+        return fn()
+    except GeofixError as exc:
+        _fail(str(exc))
+    except KeyboardInterrupt:
+        _err.print("interrupted: finished trials are stored; run the same command to resume")
+        raise typer.Exit(code=130) from None
+
+
+@app.command()
+def run(
+    scenario: Annotated[Path, typer.Argument(help="Scenario YAML file.")],
+    method: Annotated[
+        list[str], typer.Option("--method", "-m", help="Method spec, e.g. 'tercom:metric=mad'.")
+    ],
+    trials: Annotated[int | None, typer.Option(help="Override the scenario's trials.")] = None,
+    seed: Annotated[int | None, typer.Option(help="Override the scenario's seed.")] = None,
+    jobs: Annotated[int | None, typer.Option(help="Worker processes (default: cores).")] = None,
+    out: Annotated[Path, typer.Option(help="Output folder (results store, exports).")] = Path(
+        "out"
+    ),
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print one JSON object on stdout, nothing else.")
+    ] = False,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Dask scheduler address to run the campaign on.")
+    ] = None,
+    figure: Annotated[bool, typer.Option(help="Also write campaign.png to the output.")] = False,
+) -> None:
+    """Run a Monte Carlo campaign of one or more methods on a scenario."""
+
+    def go():
+        from geofix.evaluate.campaign import run_campaign
+        from geofix.sim.scenario import load_scenario
+
+        scen = load_scenario(scenario)
+        result = run_campaign(
+            scen,
+            method,
+            trials=trials,
+            seed=seed,
+            jobs=jobs,
+            out_dir=out,
+            scheduler=scheduler,
+            progress=not json_output or sys.stderr.isatty(),
+        )
+        if json_output:
+            sys.stdout.write(json.dumps(result.summary) + "\n")
+            return
+        _print_summary(result)
+        if figure:
+            _out.print(f"figure: {_write_figure(scen, method, result, out)}")
+
+    _guarded(go)
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/demo"),
+    trials: Annotated[int | None, typer.Option(help="Number of trials.")] = None,
+    jobs: Annotated[int | None, typer.Option(help="Worker processes (default: cores).")] = None,
+) -> None:
+    """TERCOM Monte Carlo on the bundled Azores bathymetry: table and figure."""
+
+    def go():
+        from geofix.evaluate.campaign import run_campaign
+        from geofix.sim.scenario import load_scenario
+
+        scen = load_scenario(builtin_scenario("azores_demo"))
+        methods = ["tercom", "tercom:metric=mad"]
+        _out.print(f"[bold]{scen.name}[/]: TERCOM on the bundled Azores bathymetry")
+        result = run_campaign(scen, methods, trials=trials, jobs=jobs, out_dir=out)
+        _print_summary(result)
+        _out.print(f"figure: {_write_figure(scen, methods, result, out)}")
+
+    _guarded(go)
+
+
+@app.command()
+def methods() -> None:
+    """List every method with its settings and their defaults."""
+    from geofix.match.registry import available_methods, method_settings
+
+    for name, cls in available_methods().items():
+        table = Table(title=f"{name} -- {(cls.__doc__ or '').strip().splitlines()[0]}")
+        table.add_column("setting")
+        table.add_column("default")
+        table.add_column("type")
+        for setting, default, kind in method_settings(cls):
+            table.add_row(setting, repr(default), kind)
+        _out.print(table)
+
+
+@app.command()
+def maps() -> None:
+    """List the bundled maps with their provenance (use them as ``builtin:NAME``)."""
+    from geofix.maps.bundled import bundled_maps
+
+    table = Table(title="bundled maps")
+    for col in ("name", "what", "source, licence"):
+        table.add_column(col)
+    for name, info in bundled_maps().items():
+        table.add_row(name, info.description, f"{info.source}; {info.licence}")
+    _out.print(table)
+
+
+def builtin_scenario(name: str) -> Path:
+    """Path of a scenario shipped inside the package."""
+    path = Path(str(resources.files("geofix") / "scenarios" / f"{name}.yaml"))
+    if not path.exists():
+        raise GeofixError(f"no bundled scenario {name!r}")
+    return path
+
+
+def _print_summary(result) -> None:
+    from geofix.evaluate.campaign import summary_table
+
+    _out.print(summary_table(result.summary))
+    for label, path in result.paths.items():
+        _out.print(f"{label}: {path}")
+
+
+def _write_figure(scen, specs, result, out: Path) -> Path:
+    """Figure of trial 0 (re-simulated, deterministic) and the campaign's error histograms."""
+    import numpy as np
+
+    from geofix.evaluate.runner import method_rng, run_trial
+    from geofix.match.registry import parse_method_spec
+    from geofix.plot.figures import campaign_figure, save_figure
+    from geofix.sim.simulate import prepare_map, simulate_trial
+
+    grid = prepare_map(scen)
+    trial = simulate_trial(scen, grid, 0)
+    estimates = {
+        spec: run_trial(
+            parse_method_spec(spec), trial, grid, method_rng(scen.seed, 0, spec)
+        ).estimate
+        for spec in specs
+    }
+    frame = result.frame
+    errors = {
+        spec: np.asarray(frame.loc[frame["method"] == spec, "end_error_m"], dtype=float)
+        for spec in specs
+    }
+    fig = campaign_figure(grid, trial.truth, trial.indicated, estimates, errors, title=scen.name)
+    return save_figure(fig, Path(out) / "campaign.png")
+
+
+def main() -> None:
+    """Entry point for ``python -m geofix``."""
+    app()
+
+
+if __name__ == "__main__":
+    main()

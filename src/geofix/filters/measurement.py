@@ -1,0 +1,108 @@
+"""One measurement model for every recursive filter: prediction, likelihood, linearisation.
+
+The field predicted at a position is the map read (bilinear) at every beam's footprint.
+The point-mass and particle filters use :func:`log_likelihood` on many hypotheses at
+once; SITAN uses :func:`linearise` (stochastic terrain linearisation: slopes of a
+least-squares plane fitted over a patch the size of the position uncertainty).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geofix.maps.grid import Grid
+from geofix.match.base import footprint_xy
+
+OFF_MAP_LOG_LIKELIHOOD = -1e6
+"""Log-likelihood per beam of a hypothesis whose footprint is off the map (finite, so a
+filter whose every hypothesis is off the map stays defined)."""
+
+
+def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offsets) -> np.ndarray:
+    """Field values every beam would read from ``positions``.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    positions : numpy.ndarray
+        ``(..., 2)`` hypothesised vehicle positions, metres.
+    heading : float
+        Heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets, metres.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(..., b)`` predicted values; NaN off the map.
+    """
+    positions = np.asarray(positions, dtype=float)
+    track = positions.reshape(-1, 1, 2)
+    psi = np.full(track.shape[:2], heading)
+    x, y = footprint_xy(track, psi, np.asarray(offsets, dtype=float))
+    values = grid.sample(x[:, 0, :], y[:, 0, :])
+    return values.reshape(*positions.shape[:-1], offsets.shape[0])
+
+
+def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var: float) -> np.ndarray:
+    """Gaussian log-likelihood of the measured beams for every hypothesis.
+
+    Parameters
+    ----------
+    predicted : numpy.ndarray
+        ``(..., b)`` predicted values (NaN off the map).
+    measured : numpy.ndarray
+        ``(b,)`` measured values (NaN = missing beam, ignored).
+    noise_var : float
+        Measurement variance (sensor + map error), map units squared.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(...)`` log-likelihoods up to a constant; off-map beams cost
+        :data:`OFF_MAP_LOG_LIKELIHOOD` each.
+    """
+    use = np.isfinite(measured)
+    if not use.any():
+        return np.zeros(predicted.shape[:-1])
+    d = predicted[..., use] - measured[use]
+    ll = -0.5 * d**2 / noise_var
+    ll = np.where(np.isfinite(ll), ll, OFF_MAP_LOG_LIKELIHOOD)
+    return ll.sum(axis=-1)
+
+
+@dataclass(frozen=True)
+class Linearisation:
+    """Local linear model of the field around an estimate, one row per beam.
+
+    ``predicted`` ``(b,)`` values read at the estimate; ``slopes`` ``(b, 2)`` field units
+    per metre along x and y; ``fit_var`` ``(b,)`` residual variance of the plane fits
+    (added to the measurement noise as linearisation error).
+    """
+
+    predicted: np.ndarray
+    slopes: np.ndarray
+    fit_var: np.ndarray
+
+
+def linearise(grid: Grid, position, heading: float, offsets, half_width_m: float) -> Linearisation:
+    """Stochastic terrain linearisation at every beam's footprint.
+
+    A least-squares plane is fitted to the map over a square patch of half-width
+    ``half_width_m`` (the position uncertainty, metres; at least one cell) around each
+    footprint; its slopes form the rows of the measurement Jacobian.
+    """
+    from geofix.maps.terrain import plane_fit
+
+    pos = np.asarray(position, dtype=float).reshape(1, 1, 2)
+    x, y = footprint_xy(pos, np.full((1, 1), heading), np.asarray(offsets, dtype=float))
+    fit = plane_fit(grid, x[0, 0], y[0, 0], max(half_width_m, grid.cell_size))
+    slopes = np.column_stack([fit.slope_x, fit.slope_y])
+    return Linearisation(
+        predicted=grid.sample(x[0, 0], y[0, 0]),
+        slopes=slopes,
+        fit_var=np.asarray(fit.residual_std, dtype=float) ** 2,
+    )
