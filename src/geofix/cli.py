@@ -23,7 +23,7 @@ app = typer.Typer(
     no_args_is_help=True,
     help="geofix: terrain- and gravity-aided navigation without GPS.",
 )
-_out = Console()
+_out = Console(width=None if sys.stdout.isatty() else 160)
 _err = Console(stderr=True)
 
 

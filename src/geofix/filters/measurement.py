@@ -94,15 +94,19 @@ def linearise(grid: Grid, position, heading: float, offsets, half_width_m: float
     A least-squares plane is fitted to the map over a square patch of half-width
     ``half_width_m`` (the position uncertainty, metres; at least one cell) around each
     footprint; its slopes form the rows of the measurement Jacobian.
+
+    ``position`` is ``(2,)`` (one estimate: arrays ``(b,)`` / ``(b, 2)``) or ``(..., 2)``
+    (several estimates at once, same heading and patch: arrays ``(..., b)`` / ``(..., b, 2)``).
     """
     from geofix.maps.terrain import plane_fit
 
-    pos = np.asarray(position, dtype=float).reshape(1, 1, 2)
-    x, y = footprint_xy(pos, np.full((1, 1), heading), np.asarray(offsets, dtype=float))
-    fit = plane_fit(grid, x[0, 0], y[0, 0], max(half_width_m, grid.cell_size))
-    slopes = np.column_stack([fit.slope_x, fit.slope_y])
+    pos = np.asarray(position, dtype=float)[..., None, :]
+    x, y = footprint_xy(pos, np.full(pos.shape[:-1], heading), np.asarray(offsets, dtype=float))
+    x, y = x[..., 0, :], y[..., 0, :]
+    fit = plane_fit(grid, x, y, max(half_width_m, grid.cell_size))
+    slopes = np.stack([fit.slope_x, fit.slope_y], axis=-1)
     return Linearisation(
-        predicted=grid.sample(x[0, 0], y[0, 0]),
+        predicted=grid.sample(x, y),
         slopes=slopes,
         fit_var=np.asarray(fit.residual_std, dtype=float) ** 2,
     )

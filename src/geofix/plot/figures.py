@@ -43,7 +43,7 @@ def campaign_figure(
         Figure title.
     margin_m : float, optional
         Map margin around the tracks, metres (default: a quarter of the track extent,
-        at least 20 cells).
+        at least 8 cells).
 
     Returns
     -------
@@ -62,7 +62,7 @@ def campaign_figure(
 def _draw_map(ax, grid, truth, indicated, estimates, margin_m):
     pts = np.vstack([truth, indicated, *estimates.values()])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    margin = margin_m if margin_m is not None else max(0.25 * (hi - lo).max(), 20 * grid.cell_size)
+    margin = margin_m if margin_m is not None else max(0.3 * (hi - lo).max(), 8 * grid.cell_size)
     x0, x1 = lo[0] - margin, hi[0] + margin
     y0, y1 = lo[1] - margin, hi[1] + margin
     sub = _window(grid, x0, x1, y0, y1)
@@ -71,7 +71,7 @@ def _draw_map(ax, grid, truth, indicated, estimates, margin_m):
         sub.values,
         origin="lower",
         extent=[v * km for v in _edges(sub)],
-        cmap="viridis" if grid.kind == "gravity" else "terrain",
+        cmap="viridis" if grid.kind == "gravity" else "cividis",
     )
     ax.figure.colorbar(image, ax=ax, label=f"{grid.kind} ({grid.units})", shrink=0.8)
     ax.plot(*(truth * km).T, "k-", lw=2, label="true")

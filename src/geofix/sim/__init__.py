@@ -1,1 +1,37 @@
-"""geofix.sim."""
+"""Simulation: validated scenarios and the missions (trials) simulated from them."""
+
+from geofix.sim.scenario import (
+    DvlSpec,
+    InsSpec,
+    MapSpec,
+    Scenario,
+    SensorSpec,
+    TrackSpec,
+    load_scenario,
+    scenario_from_dict,
+)
+from geofix.sim.simulate import (
+    check_track_on_map,
+    prepare_map,
+    simulate_trial,
+    simulate_trials,
+    start_position,
+)
+from geofix.sim.trial import Trial
+
+__all__ = [
+    "DvlSpec",
+    "InsSpec",
+    "MapSpec",
+    "Scenario",
+    "SensorSpec",
+    "TrackSpec",
+    "Trial",
+    "check_track_on_map",
+    "load_scenario",
+    "prepare_map",
+    "scenario_from_dict",
+    "simulate_trial",
+    "simulate_trials",
+    "start_position",
+]

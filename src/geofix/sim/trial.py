@@ -10,6 +10,8 @@ import numpy as np
 from geofix.maps.grid import Grid
 from geofix.match.base import MatchProblem
 
+_TRUTH_PREFIXES = ("true_", "unlagged_")
+
 
 @dataclass(frozen=True, eq=False)
 class Trial:
@@ -44,7 +46,9 @@ class Trial:
     index : int
         Trial number within its scenario.
     extras : dict
-        Aiding data (``"dvl_velocity"`` ``(n, 2)`` m/s, ``"raw_measured"`` before lag, ...).
+        Aiding data (``"dvl_velocity"`` ``(n, 2)`` m/s, ``"unlagged_measured"`` before the
+        gravimeter lag, ``"lag_s"``) and truth kept for diagnostics (keys starting with
+        ``"true_"`` or ``"unlagged_"``, never handed to a method).
     """
 
     truth: np.ndarray
@@ -82,6 +86,7 @@ class Trial:
         extras = {
             k: (v[part] if isinstance(v, np.ndarray) and v.shape[:1] == (self.n,) else v)
             for k, v in self.extras.items()
+            if not k.startswith(_TRUTH_PREFIXES)
         }
         return MatchProblem(
             grid=grid,

@@ -1,0 +1,365 @@
+"""Campaigns: every trial of a scenario with every method, in a process pool or on Dask.
+
+The map is loaded and prepared once, in the calling process, and shipped once to each
+worker (the pool's initializer, or a broadcast ``scatter`` on Dask). A task is one trial
+index with the methods still to run on it, so each trial is simulated once per task.
+Workers return results; the calling process writes them to the store as they complete, so
+an interrupted campaign resumes where it stopped. The generator of method ``m`` on trial
+``i`` depends only on ``(seed, i, m)``: the same command gives the same table whatever the
+number of jobs or the scheduler (wall times aside).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import json
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import closing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from geofix.errors import ConfigError
+from geofix.evaluate.metrics import summarize
+from geofix.evaluate.runner import TrialResult, method_rng, run_trial
+from geofix.evaluate.store import ResultStore, scenario_hash
+from geofix.maps.grid import Grid
+from geofix.match.registry import parse_method_spec
+from geofix.sim.scenario import Scenario
+
+SUMMARY_NAME = "summary.json"
+
+# (spec, method) pairs of one task, and what a task returns: (spec, trial, result).
+_Task = tuple[int, list[tuple[str, object]]]
+_Done = list[tuple[str, int, TrialResult]]
+
+
+@dataclass
+class CampaignResult:
+    """The outcome of :func:`run_campaign`.
+
+    Parameters
+    ----------
+    scenario : str
+        Scenario name.
+    trials : int
+        Number of trials (indices ``0 .. trials-1``).
+    frame : pandas.DataFrame
+        One row per (method, trial), methods in the order given, trials ascending (see
+        :meth:`geofix.evaluate.store.ResultStore.to_frame` for the columns).
+    summary : dict
+        ``{"scenario", "trials", "methods": {spec: stats}}`` (see
+        :func:`geofix.evaluate.metrics.summarize`), as written to ``summary.json``.
+    paths : dict
+        ``{"store": results.sqlite, "summary": summary.json}``.
+    computed : int
+        Number of (method, trial) results computed by this call (the rest were resumed).
+    scenario_hash : str
+        Key of the scenario's rows in the store (per-sample arrays for plots:
+        ``ResultStore(out_dir).to_frame(scenario_hash, arrays=True)``).
+    """
+
+    scenario: str
+    trials: int
+    frame: pd.DataFrame
+    summary: dict
+    paths: dict = field(default_factory=dict)
+    computed: int = 0
+    scenario_hash: str = ""
+
+
+def run_campaign(
+    scenario: Scenario,
+    methods: list[str],
+    trials: int | None = None,
+    seed: int | None = None,
+    jobs: int | None = None,
+    out_dir: str | Path = "out",
+    scheduler=None,
+    progress: bool = True,
+) -> CampaignResult:
+    """Run every method on trials ``0 .. trials-1`` of a scenario, resuming stored work.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The mission family.
+    methods : list of str
+        Method specifications (``"tercom:metric=mad"``); each is a key of the summary,
+        exactly as given.
+    trials, seed : int, optional
+        Override the scenario's number of trials and seed.
+    jobs : int, optional
+        Local worker processes (default: the number of CPUs); 1 runs in this process.
+        Ignored when ``scheduler`` is given. Workers are started with the ``spawn``
+        method: a script calling this with ``jobs > 1`` needs the usual
+        ``if __name__ == "__main__":`` guard.
+    out_dir : str or pathlib.Path
+        Folder of ``results.sqlite`` and ``summary.json``.
+    scheduler : str or object, optional
+        A Dask scheduler address or cluster, handed to ``distributed.Client``.
+    progress : bool
+        Show a progress bar on stderr.
+
+    Returns
+    -------
+    CampaignResult
+        The results table and its summary (errors in metres, times in seconds).
+
+    Raises
+    ------
+    GeofixError
+        Before any trial runs and before the store is created: an unknown or badly set
+        method (ConfigError), a missing or unusable map (MapError), a track leaving the
+        map on trial 0 (TrackOffMapError).
+    """
+    scenario = _override(scenario, trials, seed)
+    parsed = _parse_methods(methods)
+    jobs = _check_jobs(jobs)
+    simulate = importlib.import_module("geofix.sim.simulate")
+    grid = simulate.prepare_map(scenario)
+    simulate.simulate_trial(scenario, grid, 0)
+    shash = scenario_hash(scenario)
+    out = Path(out_dir)
+    with ResultStore(out) as store:
+        tasks = _pending_tasks(parsed, scenario.trials, store.done_keys(shash))
+        backend = _backend(jobs, scheduler, len(tasks))
+        results = backend(simulate.simulate_trial, scenario, grid, tasks)
+        computed = 0
+        with closing(results), _Bar(progress, scenario.name, sum(len(t[1]) for t in tasks)) as bar:
+            for done in results:
+                for spec, index, result in done:
+                    store.record(scenario.name, shash, spec, index, result)
+                bar.advance(len(done))
+                computed += len(done)
+        frame = _campaign_frame(store.to_frame(shash), list(parsed), scenario.trials)
+    result = _finish(scenario, grid, frame, out, store.path, computed)
+    return dataclasses.replace(result, scenario_hash=shash)
+
+
+def _override(scenario: Scenario, trials: int | None, seed: int | None) -> Scenario:
+    update = {}
+    if trials is not None:
+        if int(trials) < 1:
+            raise ConfigError(f"trials must be at least 1, got {trials}")
+        update["trials"] = int(trials)
+    if seed is not None:
+        update["seed"] = int(seed)
+    return scenario.model_copy(update=update) if update else scenario
+
+
+def _parse_methods(methods: list[str]) -> dict[str, object]:
+    if isinstance(methods, str) or not methods:
+        raise ConfigError("give at least one method specification, as a list of strings")
+    if len(set(methods)) != len(methods):
+        raise ConfigError(f"method specifications repeated: {list(methods)}")
+    return {spec: parse_method_spec(spec) for spec in methods}
+
+
+def _pending_tasks(parsed: dict, trials: int, done: set) -> list[_Task]:
+    tasks = []
+    for index in range(trials):
+        todo = [(spec, m) for spec, m in parsed.items() if (spec, index) not in done]
+        if todo:
+            tasks.append((index, todo))
+    return tasks
+
+
+def _campaign_frame(frame: pd.DataFrame, specs: list[str], trials: int) -> pd.DataFrame:
+    frame = frame[frame["method"].isin(specs) & (frame["trial"] < trials)].copy()
+    order = {spec: k for k, spec in enumerate(specs)}
+    frame["_order"] = frame["method"].map(order)
+    frame = frame.sort_values(["_order", "trial"], kind="stable").drop(columns="_order")
+    return frame.reset_index(drop=True)
+
+
+def _finish(scenario, grid, frame, out: Path, store_path: Path, computed: int):
+    summary = {
+        "scenario": scenario.name,
+        "trials": scenario.trials,
+        "methods": summarize(frame, grid.cell_size),
+    }
+    summary_path = out / SUMMARY_NAME
+    summary_path.write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    return CampaignResult(
+        scenario=scenario.name,
+        trials=scenario.trials,
+        frame=frame,
+        summary=summary,
+        paths={"store": store_path, "summary": summary_path},
+        computed=computed,
+    )
+
+
+# --------------------------------------------------------------------------- execution
+def run_task(simulate_trial: Callable, scenario: Scenario, grid: Grid, task: _Task) -> _Done:
+    """Simulate trial ``task[0]`` once and run each of its pending methods on it.
+
+    Parameters
+    ----------
+    simulate_trial : callable
+        ``simulate_trial(scenario, grid, index) -> Trial``.
+    scenario : Scenario
+        The scenario (its seed seeds the methods' generators).
+    grid : Grid
+        The prepared map.
+    task : tuple
+        ``(index, [(spec, method), ...])``.
+
+    Returns
+    -------
+    list of tuple
+        ``(spec, index, TrialResult)`` per method.
+    """
+    index, methods = task
+    trial = simulate_trial(scenario, grid, index)
+    return [
+        (spec, index, run_trial(method, trial, grid, method_rng(scenario.seed, index, spec)))
+        for spec, method in methods
+    ]
+
+
+def _check_jobs(jobs: int | None) -> int:
+    jobs = (os.cpu_count() or 1) if jobs is None else int(jobs)
+    if jobs < 1:
+        raise ConfigError(f"jobs must be at least 1, got {jobs}")
+    return jobs
+
+
+def _backend(jobs: int, scheduler, n_tasks: int) -> Callable:
+    if scheduler is not None:
+        return lambda *args: _run_dask(scheduler, *args)
+    if jobs == 1 or n_tasks <= 1:
+        return _run_inline
+    return lambda *args: _run_pool(min(jobs, n_tasks), *args)
+
+
+def _run_inline(simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
+    for task in tasks:
+        yield run_task(simulate_trial, scenario, grid, task)
+
+
+_WORKER_GRID: Grid | None = None
+
+
+def _init_worker(grid: Grid) -> None:
+    """Pool initializer: keep the map for every task of this worker; one numba thread."""
+    global _WORKER_GRID
+    _WORKER_GRID = grid
+    import numba
+
+    numba.set_num_threads(1)
+
+
+def _pool_task(simulate_trial, scenario, task) -> _Done:
+    return run_task(simulate_trial, scenario, _WORKER_GRID, task)
+
+
+def _run_pool(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
+    context = multiprocessing.get_context("spawn")
+    pool = ProcessPoolExecutor(jobs, context, initializer=_init_worker, initargs=(grid,))
+    try:
+        futures = [pool.submit(_pool_task, simulate_trial, scenario, task) for task in tasks]
+        for future in as_completed(futures):
+            yield future.result()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _run_dask(scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
+    import distributed
+
+    with distributed.Client(scheduler) as client:
+        shared = client.scatter(grid, broadcast=True)
+        futures = [
+            client.submit(run_task, simulate_trial, scenario, shared, task, pure=False)
+            for task in tasks
+        ]
+        try:
+            for future in distributed.as_completed(futures):
+                yield future.result()
+        finally:
+            client.cancel(futures)
+
+
+class _Bar:
+    """A rich progress bar on stderr counting (method, trial) results."""
+
+    def __init__(self, enabled: bool, name: str, total: int) -> None:
+        self._progress = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeRemainingColumn(),
+            console=Console(stderr=True),
+            disable=not enabled,
+        )
+        self._task = self._progress.add_task(name, total=total)
+
+    def __enter__(self) -> _Bar:
+        self._progress.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._progress.stop()
+
+    def advance(self, n: int) -> None:
+        """Count ``n`` more results."""
+        self._progress.advance(self._task, n)
+
+
+# --------------------------------------------------------------------------- printing
+def summary_table(summary: dict) -> Table:
+    """A printable table of a campaign summary.
+
+    Parameters
+    ----------
+    summary : dict
+        As returned in :attr:`CampaignResult.summary`.
+
+    Returns
+    -------
+    rich.table.Table
+        One row per method: trials, failures, mean / std / median / max end-point error
+        and mean along-track error (metres), success rates within 100 m, 1 cell and
+        3 cells (%), mean time per ``match`` call (milliseconds).
+    """
+    title = f"{summary['scenario']}: {summary['trials']} trials, errors in metres"
+    table = Table(title=title)
+    table.add_column("method", style="bold", no_wrap=True)
+    for head, _ in _TABLE_COLUMNS:
+        table.add_column(head, justify="right")
+    for spec, stats in summary["methods"].items():
+        table.add_row(spec, *(cell(stats) for _, cell in _TABLE_COLUMNS))
+    return table
+
+
+def _fmt(value: float | None, digits: int = 1, scale: float = 1.0) -> str:
+    return "-" if value is None else f"{scale * value:.{digits}f}"
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.0f}%"
+
+
+_TABLE_COLUMNS = (
+    ("trials", lambda s: str(s["trials"])),
+    ("failed", lambda s: str(s["failures"])),
+    ("mean", lambda s: _fmt(s["mean_error_m"])),
+    ("std", lambda s: _fmt(s["std_error_m"])),
+    ("median", lambda s: _fmt(s["median_error_m"])),
+    ("max", lambda s: _fmt(s["max_error_m"])),
+    ("track", lambda s: _fmt(s["mean_track_error_m"])),
+    ("≤100 m", lambda s: _pct(s["success_rate"]["100"])),
+    ("≤1 cell", lambda s: _pct(s["success_rate"]["1c"])),
+    ("≤3 cells", lambda s: _pct(s["success_rate"]["3c"])),
+    ("ms/call", lambda s: _fmt(s["mean_time_s"], 2, 1e3)),
+)

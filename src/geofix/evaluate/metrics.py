@@ -1,0 +1,131 @@
+"""Summary statistics of a results table: errors, success rates, timing, integrity.
+
+The table has one row per (method, trial) with the columns written by
+:class:`geofix.evaluate.store.ResultStore`: ``method``, ``trial``, ``end_error_m``,
+``mean_track_error_m``, ``max_track_error_m``, ``leg_errors_m`` (a list per row),
+``time_s``, ``n_calls``, ``evaluations``, ``ambiguous`` and ``failed``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+#: Success thresholds in metres (key -> metres).
+SUCCESS_METRES = {"20": 20.0, "40": 40.0, "60": 60.0, "80": 80.0, "100": 100.0}
+#: Success thresholds in map cells (key -> cells).
+SUCCESS_CELLS = {"0.5c": 0.5, "1c": 1.0, "2c": 2.0, "3c": 3.0}
+#: An unflagged fix farther than this many cells from the truth is a false fix.
+FALSE_FIX_CELLS = 3.0
+
+
+def summarize(results_df: pd.DataFrame, cell_m: float) -> dict:
+    """Per-method statistics of a campaign.
+
+    Failed trials (the method raised an error) are left out of every error statistic but
+    count in ``trials`` and as *not* successful in the success rates; ``failures`` counts
+    them. Error statistics are over end-point errors (the error at the last sample), with
+    the population standard deviation (``ddof=0``).
+
+    Parameters
+    ----------
+    results_df : pandas.DataFrame
+        One row per (method, trial); see the module docstring for the columns.
+    cell_m : float
+        Map cell size, metres, for the success rates in cells and the false-fix rule.
+
+    Returns
+    -------
+    dict
+        ``{method: stats}`` in order of first appearance, where ``stats`` holds plain
+        Python numbers (``None`` where undefined, e.g. no successful trial):
+        ``trials``, ``mean_error_m``, ``std_error_m``, ``median_error_m``, ``max_error_m``
+        (metres), ``mean_track_error_m`` (mean over trials of the mean along-track error,
+        metres), ``max_track_error_m`` (metres), ``success_rate`` (share of trials with an
+        end-point error <= threshold, keys ``"20"`` ... ``"100"`` metres and ``"0.5c"`` ...
+        ``"3c"`` cells), ``mean_time_s`` (seconds per ``match`` call), ``failures``,
+        ``false_fix_rate`` (share of trials ending more than 3 cells off without being
+        flagged ambiguous), ``ambiguous_rate``, ``mean_evaluations`` (per trial) and
+        ``leg_mean_errors_m`` (mean end error of every leg, metres).
+    """
+    methods = list(dict.fromkeys(results_df["method"]))
+    return {m: method_stats(results_df[results_df["method"] == m], cell_m) for m in methods}
+
+
+def method_stats(rows: pd.DataFrame, cell_m: float) -> dict:
+    """Statistics of one method's rows (see :func:`summarize`); ``cell_m`` in metres."""
+    failed = rows["failed"].to_numpy(dtype=bool)
+    ok = rows[~failed]
+    end = ok["end_error_m"].to_numpy(dtype=float)
+    n_calls = int(rows["n_calls"].sum())
+    return {
+        "trials": len(rows),
+        "mean_error_m": _num(np.mean(end) if end.size else math.nan),
+        "std_error_m": _num(np.std(end) if end.size else math.nan),
+        "median_error_m": _num(np.median(end) if end.size else math.nan),
+        "max_error_m": _num(np.max(end) if end.size else math.nan),
+        "mean_track_error_m": _num(ok["mean_track_error_m"].mean()),
+        "max_track_error_m": _num(ok["max_track_error_m"].max()),
+        "success_rate": success_rates(end, len(rows), cell_m),
+        "mean_time_s": _num(rows["time_s"].sum() / n_calls if n_calls else math.nan),
+        "failures": int(failed.sum()),
+        "false_fix_rate": _num(false_fix_rate(ok, len(rows), cell_m)),
+        "ambiguous_rate": _num(rows["ambiguous"].astype(bool).mean() if len(rows) else math.nan),
+        "mean_evaluations": _num(rows["evaluations"].mean() if len(rows) else math.nan),
+        "leg_mean_errors_m": leg_mean_errors(ok["leg_errors_m"]),
+    }
+
+
+def success_rates(end_errors: np.ndarray, trials: int, cell_m: float) -> dict:
+    """Share of ``trials`` whose end error (metres) is within each threshold.
+
+    Parameters
+    ----------
+    end_errors : numpy.ndarray
+        End-point errors of the successful (not failed) trials, metres.
+    trials : int
+        Number of trials, failed ones included (they count as not successful).
+    cell_m : float
+        Cell size, metres, for the thresholds in cells.
+
+    Returns
+    -------
+    dict
+        ``{"20": share, ..., "100": share, "0.5c": share, ..., "3c": share}``, shares in
+        ``[0, 1]`` (``None`` when ``trials`` is 0).
+    """
+    limits = dict(SUCCESS_METRES)
+    limits.update({k: v * cell_m for k, v in SUCCESS_CELLS.items()})
+    errors = np.asarray(end_errors, dtype=float)
+    return {
+        key: (float(np.count_nonzero(errors <= lim) / trials) if trials else None)
+        for key, lim in limits.items()
+    }
+
+
+def false_fix_rate(ok: pd.DataFrame, trials: int, cell_m: float) -> float:
+    """Share of ``trials`` ending farther than 3 cells (``cell_m`` metres) and not flagged."""
+    if not trials:
+        return math.nan
+    far = ok["end_error_m"].to_numpy(dtype=float) > FALSE_FIX_CELLS * cell_m
+    unflagged = ~ok["ambiguous"].to_numpy(dtype=bool)
+    return float(np.count_nonzero(far & unflagged) / trials)
+
+
+def leg_mean_errors(leg_errors: pd.Series) -> list:
+    """Mean end error of each leg, metres, over rows holding one list of leg errors each."""
+    if leg_errors.empty:
+        return []
+    legs = np.array([np.asarray(v, dtype=float) for v in leg_errors], dtype=float)
+    finite = np.isfinite(legs)
+    counts = finite.sum(axis=0)
+    sums = np.where(finite, legs, 0.0).sum(axis=0)
+    return [_num(s / c) if c else None for s, c in zip(sums, counts, strict=True)]
+
+
+def _num(value) -> float | None:
+    """A plain float, or None for NaN."""
+    value = float(value)
+    return None if math.isnan(value) else value

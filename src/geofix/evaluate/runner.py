@@ -1,0 +1,225 @@
+"""Run one method on one trial: the leg logic, timing and the errors against the truth.
+
+A batch matcher (``recursive`` False) is handed one leg at a time. Leg 0 uses the free INS
+track; after each fix the INS is reset to the fix's last position, so leg ``k`` sees
+
+- indicated positions ``fix_end[k-1] + (ins[j] - ins[r])`` for its samples ``j``, where
+  ``r`` is the last sample of leg ``k-1`` (the INS displacement since the reset, added to
+  the fix), and
+- a prior 1-sigma ``sqrt(sigma[0]**2 + max(sigma[j]**2 - sigma[r]**2, 0))``: the trial's
+  initial uncertainty standing in for the fix's, plus the INS error grown since the reset.
+
+A recursive method (``recursive`` True) is handed the whole mission as one problem and
+returns its estimate at every sample.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from geofix.errors import GeofixError
+from geofix.maps.grid import Grid
+from geofix.match.base import Fix, MatchProblem
+from geofix.sim.trial import Trial
+
+
+@dataclass(frozen=True, eq=False)
+class TrialResult:
+    """The outcome of one method on one trial.
+
+    Parameters
+    ----------
+    estimate : numpy.ndarray
+        ``(n, 2)`` estimated positions, metres; NaN for samples never estimated (after a
+        failure).
+    error : numpy.ndarray
+        ``(n,)`` horizontal distance between estimate and truth, metres.
+    end_error_m : float
+        Error at the last sample, metres (NaN when failed).
+    mean_track_error_m, max_track_error_m : float
+        Mean and maximum of ``error`` along the track, metres.
+    leg_errors_m : tuple of float
+        Error at the last sample of every leg, metres.
+    time_s : float
+        Wall time spent inside the method's ``match`` calls, seconds.
+    n_calls : int
+        Number of ``match`` calls (legs matched, or 1 for a recursive method).
+    ambiguous : bool
+        True when any fix was flagged ambiguous by the method.
+    covariance : numpy.ndarray or None
+        ``(2, 2)`` covariance of the last position, m^2, when the method gives one.
+    evaluations : int
+        Map look-ups or candidate scores spent, summed over calls.
+    failed : bool
+        True when the method raised a :class:`~geofix.errors.GeofixError`.
+    message : str
+        The error message of a failed trial, else ``""``.
+    """
+
+    estimate: np.ndarray
+    error: np.ndarray
+    end_error_m: float
+    mean_track_error_m: float
+    max_track_error_m: float
+    leg_errors_m: tuple
+    time_s: float
+    n_calls: int
+    ambiguous: bool
+    covariance: np.ndarray | None
+    evaluations: int
+    failed: bool = False
+    message: str = ""
+
+
+def method_rng(seed: int, index: int, spec: str) -> np.random.Generator:
+    """The generator handed to method ``spec`` on trial ``index`` of a scenario.
+
+    Parameters
+    ----------
+    seed : int
+        The scenario's seed.
+    index : int
+        Trial number.
+    spec : str
+        Method specification string; hashed with CRC-32 (stable across processes and
+        runs, unlike Python's ``hash``).
+
+    Returns
+    -------
+    numpy.random.Generator
+        ``default_rng([seed, index, crc32(spec)])``.
+    """
+    return np.random.default_rng([seed, index, zlib.crc32(spec.encode("utf-8"))])
+
+
+def run_trial(method, trial: Trial, grid: Grid, rng: np.random.Generator) -> TrialResult:
+    """Run ``method`` on ``trial`` and measure its errors against the truth.
+
+    Parameters
+    ----------
+    method : Matcher
+        Any object with ``match(problem, rng) -> Fix``; its class attribute ``recursive``
+        (False when absent) chooses whole-mission or leg-by-leg matching.
+    trial : Trial
+        The mission (truth, INS indication, measurements).
+    grid : Grid
+        The prior map.
+    rng : numpy.random.Generator
+        Randomness for the method (see :func:`method_rng`).
+
+    Returns
+    -------
+    TrialResult
+        Estimates and errors (metres), timing (seconds). A method raising
+        :class:`~geofix.errors.GeofixError` gives a result with ``failed=True`` and the
+        message; any other exception propagates.
+    """
+    runner = _run_recursive if getattr(method, "recursive", False) else _run_legs
+    log = _CallLog(np.full((trial.n, 2), np.nan))
+    try:
+        runner(method, trial, grid, rng, log)
+    except GeofixError as exc:
+        log.message = str(exc) or type(exc).__name__
+    return _result(trial, log)
+
+
+@dataclass
+class _CallLog:
+    """What the calls to a method produced so far (mutable, private to one run)."""
+
+    estimate: np.ndarray
+    time_s: float = 0.0
+    n_calls: int = 0
+    evaluations: int = 0
+    ambiguous: bool = False
+    covariance: np.ndarray | None = None
+    message: str | None = None
+
+    def call(self, method, problem: MatchProblem, rng: np.random.Generator) -> Fix:
+        """Time one ``match`` call and fold its fix into the log."""
+        self.n_calls += 1
+        start = time.perf_counter()
+        try:
+            fix = method.match(problem, rng)
+        finally:
+            self.time_s += time.perf_counter() - start
+        self.evaluations += int(fix.evaluations)
+        self.ambiguous |= bool(fix.ambiguous)
+        self.covariance = None if fix.covariance is None else np.asarray(fix.covariance, float)
+        return fix
+
+
+def _run_recursive(method, trial: Trial, grid: Grid, rng, log: _CallLog) -> None:
+    fix = log.call(method, trial.problem(grid), rng)
+    log.estimate[:] = np.asarray(fix.track, dtype=float)
+
+
+def _run_legs(method, trial: Trial, grid: Grid, rng, log: _CallLog) -> None:
+    fix_end = None
+    for part in trial.leg_slices():
+        if fix_end is None:
+            problem = trial.problem(grid, part)
+        else:
+            problem = reset_problem(trial, grid, part, fix_end, part.start - 1)
+        fix = log.call(method, problem, rng)
+        track = np.asarray(fix.track, dtype=float)
+        log.estimate[part] = track
+        fix_end = track[-1]
+
+
+def reset_problem(
+    trial: Trial, grid: Grid, part: slice, fix_end: np.ndarray, reset: int
+) -> MatchProblem:
+    """The problem of samples ``part`` after resetting the INS to a fix.
+
+    Parameters
+    ----------
+    trial : Trial
+        The mission.
+    grid : Grid
+        The prior map.
+    part : slice
+        Samples of the leg to match.
+    fix_end : numpy.ndarray
+        ``(2,)`` position of the previous fix at sample ``reset``, metres.
+    reset : int
+        Sample at which the INS was reset (the last sample of the previous leg).
+
+    Returns
+    -------
+    MatchProblem
+        Indicated track ``fix_end + ins[part] - ins[reset]`` (metres) and prior 1-sigma
+        ``sqrt(sigma[0]**2 + max(sigma[part]**2 - sigma[reset]**2, 0))`` (metres).
+    """
+    indicated = fix_end + (trial.indicated[part] - trial.indicated[reset])
+    sigma = trial.sigma_position
+    grown = np.maximum(sigma[part] ** 2 - sigma[reset] ** 2, 0.0)
+    problem = trial.problem(grid, part, indicated=indicated)
+    return dataclasses.replace(problem, sigma_position=np.sqrt(sigma[0] ** 2 + grown))
+
+
+def _result(trial: Trial, log: _CallLog) -> TrialResult:
+    error = np.hypot(*(log.estimate - trial.truth).T)
+    ends = [part.stop - 1 for part in trial.leg_slices()]
+    failed = log.message is not None
+    nan = float("nan")
+    return TrialResult(
+        estimate=log.estimate,
+        error=error,
+        end_error_m=nan if failed else float(error[-1]),
+        mean_track_error_m=nan if failed else float(error.mean()),
+        max_track_error_m=nan if failed else float(error.max()),
+        leg_errors_m=tuple(float(error[e]) for e in ends),
+        time_s=float(log.time_s),
+        n_calls=log.n_calls,
+        ambiguous=log.ambiguous,
+        covariance=log.covariance,
+        evaluations=log.evaluations,
+        failed=failed,
+        message=log.message or "",
+    )

@@ -1,0 +1,286 @@
+"""The results store: one SQLite file, one row per (scenario, method, trial).
+
+Every finished trial is committed at once (write-ahead log), so a campaign that is killed
+loses nothing and a rerun with the same output folder skips what is done. Rows are keyed
+by the *scenario hash* (see :func:`scenario_hash`), so editing a scenario never mixes its
+old results with new ones.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from geofix.errors import GeofixError, MapError
+from geofix.evaluate.runner import TrialResult
+from geofix.maps.bundled import BUILTIN_PREFIX, builtin_path
+from geofix.sim.scenario import Scenario
+
+STORE_NAME = "results.sqlite"
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS trials (
+    scenario TEXT NOT NULL,
+    scenario_hash TEXT NOT NULL,
+    method TEXT NOT NULL,
+    trial INTEGER NOT NULL,
+    end_error_m REAL,
+    mean_track_error_m REAL,
+    max_track_error_m REAL,
+    leg_errors_m TEXT NOT NULL,
+    time_s REAL NOT NULL,
+    n_calls INTEGER NOT NULL,
+    evaluations INTEGER NOT NULL,
+    ambiguous INTEGER NOT NULL,
+    failed INTEGER NOT NULL,
+    message TEXT NOT NULL,
+    covariance TEXT,
+    estimate BLOB NOT NULL,
+    error BLOB NOT NULL,
+    PRIMARY KEY (scenario_hash, method, trial)
+)
+"""
+
+#: Columns of :meth:`ResultStore.to_frame` without the per-sample arrays.
+SCALAR_COLUMNS = (
+    "scenario",
+    "scenario_hash",
+    "method",
+    "trial",
+    "end_error_m",
+    "mean_track_error_m",
+    "max_track_error_m",
+    "leg_errors_m",
+    "time_s",
+    "n_calls",
+    "evaluations",
+    "ambiguous",
+    "failed",
+    "message",
+)
+_ARRAY_COLUMNS = ("covariance", "estimate", "error")
+
+
+def scenario_hash(scenario: Scenario) -> str:
+    """A fingerprint of everything that decides a scenario's trials.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario. Its ``trials`` count is left out (trial ``i`` does not depend on how
+        many trials are run, so a longer campaign extends a shorter one), as is
+        ``base_dir``.
+
+    Returns
+    -------
+    str
+        Hex SHA-256 of the canonical JSON of the scenario plus the map file's name and
+        size in bytes.
+
+    Raises
+    ------
+    MapError
+        If the map file does not exist.
+    """
+    data = scenario.model_dump(mode="json", exclude={"base_dir", "trials"})
+    path = _map_file(scenario)
+    try:
+        size = path.stat().st_size
+    except OSError:
+        raise MapError(f"map file not found: {path}") from None
+    data["_map_file"] = {"name": path.name, "size": size}
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _map_file(scenario: Scenario) -> Path:
+    if scenario.map.path.startswith(BUILTIN_PREFIX):
+        return builtin_path(scenario.map.path)
+    return Path(scenario.map_path())
+
+
+class ResultStore:
+    """Trial results in ``<out_dir>/results.sqlite``.
+
+    Parameters
+    ----------
+    out_dir : str or pathlib.Path
+        Output folder; created if missing.
+    """
+
+    def __init__(self, out_dir: str | Path) -> None:
+        self.path = Path(out_dir) / STORE_NAME
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = sqlite3.connect(self.path)
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.execute(_SCHEMA)
+            self._db.commit()
+        except (OSError, sqlite3.Error) as exc:
+            raise GeofixError(f"cannot open results store {self.path}: {exc}") from None
+
+    def close(self) -> None:
+        """Close the database connection."""
+        self._db.close()
+
+    def __enter__(self) -> ResultStore:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def record(
+        self, scenario: str, shash: str, method: str, trial: int, result: TrialResult
+    ) -> None:
+        """Write (or overwrite) one trial's result and commit at once.
+
+        Parameters
+        ----------
+        scenario : str
+            Scenario name.
+        shash : str
+            Scenario hash (:func:`scenario_hash`).
+        method : str
+            Method specification string, exactly as given.
+        trial : int
+            Trial number.
+        result : TrialResult
+            The outcome (errors in metres, time in seconds).
+        """
+        row = _row(scenario, shash, method, trial, result)
+        marks = ",".join("?" * len(row))
+        with self._db:
+            self._db.execute(f"INSERT OR REPLACE INTO trials VALUES ({marks})", row)
+
+    def done_keys(self, shash: str) -> set[tuple[str, int]]:
+        """``(method, trial)`` pairs already stored for scenario hash ``shash``."""
+        cur = self._db.execute("SELECT method, trial FROM trials WHERE scenario_hash = ?", (shash,))
+        return {(m, int(t)) for m, t in cur}
+
+    def to_frame(self, shash: str | None = None, arrays: bool = False) -> pd.DataFrame:
+        """The stored rows as a DataFrame, sorted by scenario hash, method and trial.
+
+        Parameters
+        ----------
+        shash : str, optional
+            Keep only this scenario hash.
+        arrays : bool
+            Also decode ``covariance`` ``(2, 2)`` m^2, ``estimate`` ``(n, 2)`` metres and
+            ``error`` ``(n,)`` metres into numpy arrays per row.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns :data:`SCALAR_COLUMNS` (``leg_errors_m`` holds a list of floats per
+            row, NaN for a leg not reached), plus the array columns when asked.
+        """
+        columns = SCALAR_COLUMNS + (_ARRAY_COLUMNS if arrays else ())
+        query = f"SELECT {', '.join(columns)} FROM trials"
+        params: tuple = ()
+        if shash is not None:
+            query += " WHERE scenario_hash = ?"
+            params = (shash,)
+        query += " ORDER BY scenario_hash, method, trial"
+        frame = pd.DataFrame(self._db.execute(query, params).fetchall(), columns=list(columns))
+        return _decode(frame, arrays)
+
+    def export(self, path: str | Path, shash: str | None = None) -> Path:
+        """Write the table to ``.parquet`` or ``.csv`` (chosen by the suffix of ``path``).
+
+        Per-sample arrays are included: in Parquet as list columns ``estimate_x``,
+        ``estimate_y`` and ``error`` (metres); in CSV as JSON lists.
+
+        Raises
+        ------
+        GeofixError
+            If the suffix is neither ``.parquet`` nor ``.csv``.
+        """
+        path = Path(path)
+        suffix = path.suffix.lower()
+        if suffix not in (".parquet", ".csv"):
+            raise GeofixError(f"cannot export results to {path.name}: use .parquet or .csv")
+        frame = _flatten_arrays(self.to_frame(shash, arrays=True))
+        if suffix == ".parquet":
+            frame.to_parquet(path, index=False)
+        else:
+            for col in ("leg_errors_m", "covariance", "estimate_x", "estimate_y", "error"):
+                frame[col] = [json.dumps(_json_list(v)) for v in frame[col]]
+            frame.to_csv(path, index=False)
+        return path
+
+
+def _row(scenario: str, shash: str, method: str, trial: int, r: TrialResult) -> tuple:
+    cov = None if r.covariance is None else json.dumps(_json_list(r.covariance))
+    return (
+        scenario,
+        shash,
+        method,
+        int(trial),
+        _real(r.end_error_m),
+        _real(r.mean_track_error_m),
+        _real(r.max_track_error_m),
+        json.dumps(_json_list(r.leg_errors_m)),
+        float(r.time_s),
+        int(r.n_calls),
+        int(r.evaluations),
+        int(bool(r.ambiguous)),
+        int(bool(r.failed)),
+        r.message,
+        cov,
+        np.ascontiguousarray(r.estimate, dtype="<f8").tobytes(),
+        np.ascontiguousarray(r.error, dtype="<f8").tobytes(),
+    )
+
+
+def _decode(frame: pd.DataFrame, arrays: bool) -> pd.DataFrame:
+    for col in ("end_error_m", "mean_track_error_m", "max_track_error_m"):
+        frame[col] = frame[col].astype(float)
+    frame["leg_errors_m"] = [_float_list(json.loads(v)) for v in frame["leg_errors_m"]]
+    frame["ambiguous"] = frame["ambiguous"].astype(bool)
+    frame["failed"] = frame["failed"].astype(bool)
+    if arrays:
+        frame["covariance"] = [
+            np.array(_float_list(json.loads(v))) if isinstance(v, str) else None
+            for v in frame["covariance"]
+        ]
+        frame["estimate"] = [
+            np.frombuffer(b, dtype="<f8").reshape(-1, 2) for b in frame["estimate"]
+        ]
+        frame["error"] = [np.frombuffer(b, dtype="<f8") for b in frame["error"]]
+    return frame
+
+
+def _flatten_arrays(frame: pd.DataFrame) -> pd.DataFrame:
+    frame = frame.copy()
+    frame["estimate_x"] = [e[:, 0].tolist() for e in frame["estimate"]]
+    frame["estimate_y"] = [e[:, 1].tolist() for e in frame["estimate"]]
+    frame["error"] = [e.tolist() for e in frame["error"]]
+    frame["covariance"] = [
+        None if c is None else c.reshape(-1).tolist() for c in frame["covariance"]
+    ]
+    return frame.drop(columns=["estimate"])
+
+
+def _real(value: float) -> float | None:
+    value = float(value)
+    return None if math.isnan(value) else value
+
+
+def _json_list(values) -> list | None:
+    """Nested lists of floats with NaN as None (strict JSON)."""
+    if values is None:
+        return None
+    arr = np.asarray(values, dtype=float)
+    return np.where(np.isnan(arr), None, arr).tolist()
+
+
+def _float_list(values) -> list:
+    """Back from :func:`_json_list`: None -> NaN, nested lists kept."""
+    return np.asarray(values, dtype=float).tolist()

@@ -1,0 +1,464 @@
+"""Reading maps into :class:`Grid` values, and saving them.
+
+:func:`load_grid` reads netCDF (any variable, lon/lat or projected metres), GeoTIFF, BAG
+and grids saved by :func:`save_grid`; it crops a region in the file's own coordinates,
+projects lon/lat grids to a local transverse-Mercator frame (see
+:mod:`geofix.maps.project`) and resamples. Heavy readers (xarray, rioxarray, h5py) are
+imported only when a file of their format is read.
+"""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from geofix.errors import MapError
+from geofix.maps import project
+from geofix.maps.bundled import BUILTIN_PREFIX, BUNDLED_MAPS, builtin_name, builtin_path
+from geofix.maps.grid import KINDS, Grid
+
+NETCDF_SUFFIXES = (".nc", ".nc4", ".cdf", ".grd", ".netcdf")
+GEOTIFF_SUFFIXES = (".tif", ".tiff", ".gtiff")
+BAG_SUFFIXES = (".bag",)
+BAG_NODATA = 1e6
+DEFAULT_UNITS = {"depth": "m", "gravity": "mGal"}
+_GRAVITY_WORDS = ("grav", "mgal", "free-air", "free air", "freeair", "anomaly")
+_X_NAMES = ("x", "lon", "longitude", "long", "easting", "east")
+_Y_NAMES = ("y", "lat", "latitude", "northing", "north")
+
+
+@dataclass
+class _Raw:
+    """A grid as read from a file: ascending axes, row 0 at the south."""
+
+    values: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    geographic: bool
+    fmt: str
+    variable: str | None = None
+    units: str | None = None
+    text: str = ""
+    spacing: tuple[float, float] | None = None
+    saved: dict | None = None
+    extra: dict = field(default_factory=dict)
+
+
+# ---------------------------------------------------------------------- public API
+def load_grid(
+    path: str | Path,
+    variable: str | None = None,
+    kind: str | None = None,
+    region=None,
+    resample_m: float | None = None,
+    name: str | None = None,
+) -> Grid:
+    """Read a map file into a metric :class:`Grid`.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A file (netCDF, GeoTIFF, BAG, or a grid saved by :func:`save_grid`) or
+        ``"builtin:NAME"`` for a bundled map (see :func:`geofix.maps.bundled_maps`).
+    variable : str, optional
+        netCDF variable (default: the only 2-D variable, else ``z``); GeoTIFF band number.
+    kind : {"depth", "gravity"}, optional
+        Field kind; by default "gravity" when the variable name, units or long name
+        mention gravity, mGal, free-air or anomaly, else "depth".
+    region : sequence of 4 floats, optional
+        ``[west, east, south, north]`` in the file's own coordinates (degrees or metres),
+        cut before projection and resampling.
+    resample_m : float, optional
+        Output cell size, metres. Lon/lat grids default to their native spacing at the
+        centre (the smaller axis); metric grids keep theirs.
+    name : str, optional
+        Map name (default: the builtin name or the file's stem).
+
+    Returns
+    -------
+    Grid
+        Row 0 at the south; ``meta`` holds the provenance (source, variable, region,
+        projection, original spacing).
+
+    Raises
+    ------
+    MapError
+        Missing or unreadable file, unknown variable, a region without cells, no data.
+    """
+    if kind is not None and kind not in KINDS:
+        raise MapError(f"map kind must be one of {KINDS}, got {kind!r}")
+    source, file_path, default_kind = _resolve(path)
+    raw = _read(file_path, variable, source)
+    raw = _crop(raw, region, source)
+    if raw.saved is not None:
+        return _finish_saved(raw, region, resample_m, kind, name)
+    kind = kind or _detect_kind(raw.text, default_kind)
+    units = raw.units or DEFAULT_UNITS[kind]
+    name = name or (source.removeprefix(BUILTIN_PREFIX) if _is_builtin(path) else file_path.stem)
+    labels = {"kind": kind, "units": units, "name": name}
+    return _to_metric(raw, resample_m, _provenance(raw, source, region), source, labels)
+
+
+def save_grid(grid: Grid, path: str | Path) -> Path:
+    """Write a :class:`Grid` to netCDF so that :func:`load_grid` restores it exactly.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map to save.
+    path : str or pathlib.Path
+        Output file (netCDF-4).
+
+    Returns
+    -------
+    pathlib.Path
+        The path written. The file holds variable ``z`` on metric ``x``/``y`` coordinates
+        and the attributes ``x0, y0, dx, dy, kind, units, name, meta_json`` and
+        ``geofix_grid = 1``. ``meta`` is stored as JSON: values and geometry come back
+        exactly, tuples in ``meta`` come back as lists.
+    """
+    import xarray as xr
+
+    path = Path(path)
+    attrs = {
+        "geofix_grid": 1,
+        "x0": float(grid.x0),
+        "y0": float(grid.y0),
+        "dx": float(grid.dx),
+        "dy": float(grid.dy),
+        "kind": grid.kind,
+        "units": grid.units,
+        "name": grid.name,
+        "meta_json": json.dumps(grid.meta, default=str),
+    }
+    values = xr.DataArray(np.asarray(grid.values, dtype=float), dims=("y", "x"))
+    values.attrs = {"units": grid.units, "long_name": grid.kind}
+    ds = xr.Dataset({"z": values}, coords={"x": grid.x, "y": grid.y}, attrs=attrs)
+    ds["x"].attrs["units"] = "m"
+    ds["y"].attrs["units"] = "m"
+    try:
+        ds.to_netcdf(path)
+    except (OSError, ValueError) as exc:
+        raise MapError(f"cannot write map to {path}: {_one_line(exc)}") from exc
+    return path
+
+
+# ---------------------------------------------------------------------- resolution
+def _is_builtin(path) -> bool:
+    return isinstance(path, str) and path.startswith(BUILTIN_PREFIX)
+
+
+def _resolve(path) -> tuple[str, Path, str | None]:
+    """``(source label, file path, default kind)``; MapError if the file is missing."""
+    if _is_builtin(path):
+        bare = builtin_name(path)
+        return f"{BUILTIN_PREFIX}{bare}", builtin_path(bare), BUNDLED_MAPS[bare].kind
+    file_path = Path(path)
+    if not file_path.is_file():
+        raise MapError(f"map file not found: {file_path}")
+    return str(file_path), file_path, None
+
+
+def _read(path: Path, variable: str | None, source: str) -> _Raw:
+    """Dispatch on the file suffix (unknown suffixes try netCDF, then GeoTIFF)."""
+    suffix = path.suffix.lower()
+    if suffix in BAG_SUFFIXES:
+        return _read_bag(path, source)
+    if suffix in GEOTIFF_SUFFIXES:
+        return _read_geotiff(path, variable, source)
+    if suffix in NETCDF_SUFFIXES:
+        return _read_netcdf(path, variable, source)
+    try:
+        return _read_netcdf(path, variable, source)
+    except MapError:
+        try:
+            return _read_geotiff(path, variable, source)
+        except MapError:
+            raise MapError(f"unrecognised map format: {source}") from None
+
+
+def _one_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
+# ---------------------------------------------------------------------- netCDF
+def _read_netcdf(path: Path, variable: str | None, source: str) -> _Raw:
+    import xarray as xr
+
+    try:
+        ds = xr.open_dataset(path)
+    except Exception as exc:  # xarray raises many types for a bad file
+        raise MapError(f"cannot read {source} as netCDF: {_one_line(exc)}") from exc
+    with ds:
+        if int(ds.attrs.get("geofix_grid", 0)) == 1:
+            return _saved_raw(ds)
+        var = _pick_variable(ds, variable, source)
+        da = _as_yx(ds[var].squeeze(drop=True), source)
+        xname, yname = da.dims[1], da.dims[0]
+        for dim in (xname, yname):
+            if dim not in da.coords:
+                raise MapError(f"{source}: variable {var!r} has no coordinate for {dim!r}")
+        x, y = da[xname].values.astype(float), da[yname].values.astype(float)
+        xa, ya = dict(da[xname].attrs), dict(da[yname].attrs)
+        attrs = dict(da.attrs)
+        values = da.values.astype(float)
+    geographic = _is_geographic(str(xname), str(yname), xa, ya, x, y)
+    values, x, y = _ascending(values, x, y, source)
+    text = " ".join([var, str(attrs.get("long_name", "")), str(attrs.get("standard_name", ""))])
+    units = attrs.get("units") or None
+    return _Raw(values, x, y, geographic, "netcdf", var, units, f"{text} {units or ''}")
+
+
+def _pick_variable(ds, variable: str | None, source: str) -> str:
+    """The requested variable, or the only 2-D one, or ``z``."""
+    names = [str(v) for v in ds.data_vars]
+    if variable is not None:
+        if variable not in names:
+            raise MapError(
+                f"unknown variable {variable!r} in {source}; available: {', '.join(names)}"
+            )
+        return variable
+    grids = [v for v in names if ds[v].squeeze().ndim == 2]
+    if len(grids) == 1:
+        return grids[0]
+    if "z" in grids:
+        return "z"
+    raise MapError(
+        f"{source}: cannot choose a 2-D variable among [{', '.join(grids)}]; pass variable="
+    )
+
+
+def _as_yx(da, source: str):
+    """The DataArray with dims ordered ``(y, x)`` (transposed if it comes as x, y)."""
+    if da.ndim != 2:
+        raise MapError(f"{source}: variable {da.name!r} is not 2-D (dims {da.dims})")
+    first, second = (str(d).lower() for d in da.dims)
+    if first in _X_NAMES and second in _Y_NAMES:
+        return da.transpose()
+    return da
+
+
+def _is_geographic(xname: str, yname: str, xattrs: dict, yattrs: dict, x, y) -> bool:
+    """Whether the axes are lon/lat degrees (units, names, then value ranges)."""
+    units = f"{xattrs.get('units', '')} {yattrs.get('units', '')}".lower()
+    if "degree" in units:
+        return True
+    if xname.lower() in ("lon", "longitude") or yname.lower() in ("lat", "latitude"):
+        return True
+    if units.strip():
+        return False
+    in_range = np.all(np.abs(x) <= 180) and np.all(np.abs(y) <= 90)
+    fine = np.median(np.abs(np.diff(x))) < 1 and np.median(np.abs(np.diff(y))) < 1
+    return bool(in_range and fine)
+
+
+def _saved_raw(ds) -> _Raw:
+    """A grid written by :func:`save_grid`, geometry taken from its attributes."""
+    a = ds.attrs
+    values = ds["z"].values.astype(float)
+    ny, nx = values.shape
+    x = float(a["x0"]) + float(a["dx"]) * np.arange(nx)
+    y = float(a["y0"]) + float(a["dy"]) * np.arange(ny)
+    saved = {k: a[k] for k in ("kind", "units", "name")}
+    saved["meta"] = json.loads(a.get("meta_json", "{}"))
+    spacing = (float(a["dx"]), float(a["dy"]))
+    return _Raw(values, x, y, False, "geofix", "z", saved["units"], spacing=spacing, saved=saved)
+
+
+# ---------------------------------------------------------------------- GeoTIFF
+def _read_geotiff(path: Path, variable: str | None, source: str) -> _Raw:
+    import rioxarray
+
+    try:
+        da = rioxarray.open_rasterio(path, masked=True)
+    except Exception as exc:  # rasterio raises its own error types
+        raise MapError(f"cannot read {source} as GeoTIFF: {_one_line(exc)}") from exc
+    with da:
+        band = _pick_band(da, variable, source)
+        crs = da.rio.crs
+        x, y = da["x"].values.astype(float), da["y"].values.astype(float)
+        values = da.isel(band=band).values.astype(float) if "band" in da.dims else da.values
+        attrs = dict(da.attrs)
+    if crs is not None:
+        geographic = bool(crs.is_geographic)
+    else:
+        geographic = _is_geographic("x", "y", {}, {}, x, y)
+    values, x, y = _ascending(np.asarray(values, dtype=float), x, y, source)
+    units = attrs.get("units") or None
+    text = f"{attrs.get('long_name', '')} {units or ''} {path.stem}"
+    extra = {"crs": crs.to_string() if crs is not None else None}
+    return _Raw(values, x, y, geographic, "geotiff", f"band {band + 1}", units, text, extra=extra)
+
+
+def _pick_band(da, variable: str | None, source: str) -> int:
+    """Zero-based band index from ``variable`` (a 1-based band number), default band 1."""
+    count = da.sizes.get("band", 1)
+    if variable is None:
+        return 0
+    try:
+        band = int(str(variable).lower().removeprefix("band").strip())
+    except ValueError:
+        band = 0
+    if not 1 <= band <= count:
+        raise MapError(f"unknown band {variable!r} in {source}; available: 1..{count}")
+    return band - 1
+
+
+# ---------------------------------------------------------------------- BAG
+def _read_bag(path: Path, source: str) -> _Raw:
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            values = np.asarray(f["BAG_root/elevation"][()], dtype=float)
+            xml = np.asarray(f["BAG_root/metadata"][()]).tobytes()
+    except (OSError, KeyError) as exc:
+        raise MapError(f"cannot read {source} as BAG: {_one_line(exc)}") from exc
+    dx, dy, llx, lly = _bag_geometry(xml, source)
+    values[values >= BAG_NODATA] = np.nan
+    ny, nx = values.shape
+    x = llx + dx * np.arange(nx)
+    y = lly + dy * np.arange(ny)
+    return _Raw(values, x, y, False, "bag", "elevation", "m", "elevation", spacing=(dx, dy))
+
+
+def _local(tag: str) -> str:
+    return tag.rsplit("}", 1)[-1]
+
+
+def _bag_geometry(xml: bytes, source: str) -> tuple[float, float, float, float]:
+    """``(dx, dy, x_sw, y_sw)`` from BAG ISO metadata: resolutions and the SW corner."""
+    try:
+        root = ET.fromstring(xml.replace(b"\x00", b"").strip())
+        resolution = {}
+        for dim in (e for e in root.iter() if _local(e.tag) == "MD_Dimension"):
+            named = [e for e in dim.iter() if _local(e.tag) == "dimensionName"]
+            res = [e for e in dim.iter() if _local(e.tag) == "resolution"]
+            key = "".join(named[0].itertext()).strip() or named[0].attrib.get("codeListValue")
+            resolution[key] = float("".join(res[0].itertext()).strip())
+        coords = next(e for e in root.iter() if _local(e.tag) == "coordinates")
+        sw = coords.text.split()[0].split(",")
+        return resolution["column"], resolution["row"], float(sw[0]), float(sw[1])
+    except (ET.ParseError, KeyError, IndexError, ValueError, StopIteration, AttributeError) as e:
+        raise MapError(f"{source}: cannot find grid spacing and corners in BAG metadata") from e
+
+
+# ---------------------------------------------------------------------- shared steps
+def _ascending(values: np.ndarray, x: np.ndarray, y: np.ndarray, source: str):
+    """Flip axes so that x and y ascend (row 0 south, column 0 west)."""
+    for axis, coord in ((1, x), (0, y)):
+        step = np.diff(coord)
+        if not (np.all(step > 0) or np.all(step < 0)):
+            raise MapError(f"{source}: coordinates along axis {axis} are not monotonic")
+    if x[-1] < x[0]:
+        values, x = values[:, ::-1], x[::-1]
+    if y[-1] < y[0]:
+        values, y = values[::-1, :], y[::-1]
+    return np.ascontiguousarray(values), x, y
+
+
+def _crop(raw: _Raw, region, source: str) -> _Raw:
+    """Keep the cells whose centres lie in ``[west, east, south, north]``."""
+    if region is None:
+        return raw
+    try:
+        west, east, south, north = (float(v) for v in region)
+    except (TypeError, ValueError):
+        raise MapError(f"region must be [west, east, south, north], got {region!r}") from None
+    tol_x = 1e-9 * (abs(raw.x[-1] - raw.x[0]) + 1.0)
+    tol_y = 1e-9 * (abs(raw.y[-1] - raw.y[0]) + 1.0)
+    cols = np.flatnonzero((raw.x >= west - tol_x) & (raw.x <= east + tol_x))
+    rows = np.flatnonzero((raw.y >= south - tol_y) & (raw.y <= north + tol_y))
+    if cols.size < 2 or rows.size < 2:
+        cover = f"{raw.x[0]:g}..{raw.x[-1]:g}, {raw.y[0]:g}..{raw.y[-1]:g}"
+        raise MapError(f"region {list(region)} leaves no cells of {source} (it covers {cover})")
+    values = raw.values[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
+    x, y = raw.x[cols[0] : cols[-1] + 1], raw.y[rows[0] : rows[-1] + 1]
+    return replace(raw, values=values, x=x, y=y)
+
+
+def _detect_kind(text: str, default_kind: str | None) -> str:
+    lowered = text.lower()
+    if any(word in lowered for word in _GRAVITY_WORDS):
+        return "gravity"
+    return default_kind or "depth"
+
+
+def _require_data(values: np.ndarray, source: str) -> None:
+    if np.all(np.isnan(values)):
+        raise MapError(f"{source}: every cell is NaN (no data) in the selected area")
+
+
+def _spacing(raw: _Raw) -> tuple[float, float]:
+    """Native cell size in file units (regularity checked for metric axes)."""
+    if raw.spacing is not None:
+        return raw.spacing
+    dx = (raw.x[-1] - raw.x[0]) / (raw.x.size - 1)
+    dy = (raw.y[-1] - raw.y[0]) / (raw.y.size - 1)
+    return float(dx), float(dy)
+
+
+def _check_regular(raw: _Raw, dx: float, dy: float, source: str) -> None:
+    for coord, step in ((raw.x, dx), (raw.y, dy)):
+        if np.max(np.abs(np.diff(coord) - step)) > 1e-3 * step:
+            raise MapError(f"{source}: projected grid coordinates are not regularly spaced")
+
+
+def _provenance(raw: _Raw, source: str, region) -> dict:
+    meta = {
+        "source": source,
+        "format": raw.fmt,
+        "variable": raw.variable,
+        "region": None if region is None else [float(v) for v in region],
+        "original_spacing": _spacing(raw),
+        "original_shape": tuple(raw.values.shape),
+        "geographic": raw.geographic,
+    }
+    meta.update(raw.extra)
+    return meta
+
+
+def _to_metric(raw: _Raw, cell_m: float | None, meta: dict, source: str, labels: dict) -> Grid:
+    """Project (lon/lat) or keep (metric) the raw grid, then resample if asked."""
+    _require_data(raw.values, source)
+    if raw.geographic:
+        pv = project.project_lonlat_grid(raw.values, raw.x, raw.y, cell_m)
+        _require_data(pv.values, source)
+        meta["projection"] = pv.proj
+        meta["native_spacing_m"] = project.native_spacing_m(raw.x, raw.y, pv.proj)
+        return Grid(pv.values, pv.x0, pv.y0, pv.dx, pv.dy, meta=meta, **labels)
+    dx, dy = _spacing(raw)
+    _check_regular(raw, dx, dy, source)
+    meta["projection"] = None
+    grid = Grid(raw.values, float(raw.x[0]), float(raw.y[0]), dx, dy, meta=meta, **labels)
+    if cell_m is not None:
+        grid = project.resample_m(grid, cell_m)
+        _require_data(grid.values, source)
+    return grid
+
+
+def _finish_saved(raw: _Raw, region, cell_m, kind: str | None, name: str | None) -> Grid:
+    """A grid written by :func:`save_grid`: restore it, cropping/resampling if asked."""
+    saved = raw.saved
+    _require_data(raw.values, str(saved["name"]))
+    meta = dict(saved["meta"])
+    if region is not None:
+        meta["region"] = [float(v) for v in region]
+    dx, dy = raw.spacing
+    grid = Grid(
+        raw.values,
+        float(raw.x[0]),
+        float(raw.y[0]),
+        dx,
+        dy,
+        kind=kind or str(saved["kind"]),
+        units=str(saved["units"]),
+        name=name or str(saved["name"]),
+        meta=meta,
+    )
+    return grid if cell_m is None else project.resample_m(grid, cell_m)

@@ -1,0 +1,193 @@
+"""Projection of lon/lat grids to a local metric frame, and metric resampling.
+
+A geographic grid is projected once, when it is loaded, to a local transverse-Mercator
+frame centred on the grid (x east, y north, metres, scale 1 on the central meridian), and
+resampled bilinearly to a regular metric grid. Bilinear reads follow :meth:`Grid.sample`:
+a node whose four source cells include a NaN is NaN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import NamedTuple
+
+import numpy as np
+
+from geofix.errors import MapError
+from geofix.maps.grid import Grid, _bilinear
+
+# Relative slack (in cells) that keeps nodes on the very edge of the source inside it
+# despite round-off in the projection.
+_EDGE_SLACK_CELLS = 1e-6
+
+
+class ProjectedValues(NamedTuple):
+    """A lon/lat grid projected to a regular metric grid (unpacks as a 6-tuple)."""
+
+    values: np.ndarray
+    x0: float
+    y0: float
+    dx: float
+    dy: float
+    proj: str
+
+
+def local_tmerc(lon0: float, lat0: float) -> str:
+    """PROJ string of a transverse-Mercator frame centred on ``(lon0, lat0)`` degrees.
+
+    Parameters
+    ----------
+    lon0, lat0 : float
+        Centre of the frame, degrees (WGS84); it gets coordinates ``(0, 0)`` metres.
+
+    Returns
+    -------
+    str
+        PROJ string, x east and y north in metres, scale factor 1.
+    """
+    return (
+        f"+proj=tmerc +lat_0={lat0:.10g} +lon_0={lon0:.10g} +k=1 +x_0=0 +y_0=0 "
+        "+ellps=WGS84 +units=m +no_defs"
+    )
+
+
+def native_spacing_m(lon: np.ndarray, lat: np.ndarray, proj: str) -> tuple[float, float]:
+    """Size of one source cell at the grid centre, metres east and north.
+
+    Parameters
+    ----------
+    lon, lat : numpy.ndarray
+        1-D ascending cell-centre longitudes and latitudes, degrees.
+    proj : str
+        PROJ string of the metric frame.
+
+    Returns
+    -------
+    (float, float)
+        East-west and north-south extent of one median cell at the centre, metres.
+    """
+    from pyproj import Proj
+
+    dlon = float(np.median(np.diff(lon)))
+    dlat = float(np.median(np.diff(lat)))
+    lon_c, lat_c = 0.5 * (lon[0] + lon[-1]), 0.5 * (lat[0] + lat[-1])
+    p = Proj(proj)
+    ex, ey = p([lon_c - dlon / 2, lon_c + dlon / 2], [lat_c, lat_c])
+    nx, ny = p([lon_c, lon_c], [lat_c - dlat / 2, lat_c + dlat / 2])
+    return float(np.hypot(ex[1] - ex[0], ey[1] - ey[0])), float(
+        np.hypot(nx[1] - nx[0], ny[1] - ny[0])
+    )
+
+
+def _footprint(lon: np.ndarray, lat: np.ndarray, proj) -> tuple[float, float, float, float]:
+    """Metric bounding box ``(xmin, xmax, ymin, ymax)`` of the lon/lat box's boundary."""
+    blon = np.concatenate([lon, lon, np.full(lat.size, lon[0]), np.full(lat.size, lon[-1])])
+    blat = np.concatenate([np.full(lon.size, lat[0]), np.full(lon.size, lat[-1]), lat, lat])
+    bx, by = proj(blon, blat)
+    return float(bx.min()), float(bx.max()), float(by.min()), float(by.max())
+
+
+def _axis_nodes(lo: float, hi: float, cell: float) -> np.ndarray:
+    """Regular nodes ``cell`` apart covering ``[lo, hi]``, centred in that interval."""
+    n = int(np.floor((hi - lo) / cell + 1e-9)) + 1
+    start = lo + 0.5 * ((hi - lo) - (n - 1) * cell)
+    return start + cell * np.arange(n)
+
+
+def fractional_index(axis: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Fractional index of positions ``q`` along an ascending (possibly irregular) axis.
+
+    Parameters
+    ----------
+    axis : numpy.ndarray
+        1-D strictly ascending coordinates.
+    q : numpy.ndarray
+        Positions, same unit as ``axis``; any shape.
+
+    Returns
+    -------
+    numpy.ndarray
+        Fractional indices (linear between nodes); NaN outside the axis beyond a tiny
+        round-off slack.
+    """
+    n = axis.size
+    idx = np.interp(q, axis, np.arange(n, dtype=float))
+    slack = _EDGE_SLACK_CELLS * (axis[-1] - axis[0]) / max(n - 1, 1)
+    outside = (q < axis[0] - slack) | (q > axis[-1] + slack)
+    return np.where(outside, np.nan, idx)
+
+
+def project_lonlat_grid(
+    values: np.ndarray, lon: np.ndarray, lat: np.ndarray, cell_m: float | None = None
+) -> ProjectedValues:
+    """Project a lon/lat grid to a local transverse-Mercator frame and resample it.
+
+    The metric grid covers the bounding box of the projected lon/lat box (nodes outside
+    the source are NaN) with square cells of ``cell_m``; each node reads the source
+    bilinearly at its own lon/lat.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(ny, nx)`` field, row 0 at the south, column 0 at the west.
+    lon, lat : numpy.ndarray
+        ``(nx,)`` and ``(ny,)`` strictly ascending cell-centre coordinates, degrees.
+    cell_m : float, optional
+        Metric cell size, metres; default the smaller native spacing at the grid centre.
+
+    Returns
+    -------
+    ProjectedValues
+        ``(values, x0, y0, dx, dy, proj)``: metric values (row 0 south), centre of cell
+        ``[0, 0]`` and cell size in metres, and the PROJ string of the frame.
+    """
+    from pyproj import Proj
+
+    lon = np.asarray(lon, dtype=float)
+    lat = np.asarray(lat, dtype=float)
+    proj = local_tmerc(0.5 * (lon[0] + lon[-1]), 0.5 * (lat[0] + lat[-1]))
+    if cell_m is None:
+        cell_m = min(native_spacing_m(lon, lat, proj))
+    if not cell_m > 0:
+        raise MapError(f"cell size must be positive, got {cell_m}")
+    p = Proj(proj)
+    xmin, xmax, ymin, ymax = _footprint(lon, lat, p)
+    x = _axis_nodes(xmin, xmax, cell_m)
+    y = _axis_nodes(ymin, ymax, cell_m)
+    node_lon, node_lat = p(*np.meshgrid(x, y), inverse=True)
+    col = fractional_index(lon, node_lon)
+    row = fractional_index(lat, node_lat)
+    out = _bilinear(np.asarray(values, dtype=float), col, row)
+    return ProjectedValues(out, float(x[0]), float(y[0]), float(cell_m), float(cell_m), proj)
+
+
+def resample_m(grid: Grid, cell_m: float) -> Grid:
+    """Resample a metric grid bilinearly to square cells of ``cell_m`` metres.
+
+    The new grid starts at the old grid's first cell centre and covers its extent.
+
+    Parameters
+    ----------
+    grid : Grid
+        A metric grid.
+    cell_m : float
+        New cell size along x and y, metres.
+
+    Returns
+    -------
+    Grid
+        The resampled grid (same kind, units and name; ``meta["resampled_from_m"]`` holds
+        the old ``(dx, dy)``).
+    """
+    if not cell_m > 0:
+        raise MapError(f"map {grid.name!r}: resampling cell size must be positive, got {cell_m}")
+    ny, nx = grid.shape
+    new_nx = int(np.floor((nx - 1) * grid.dx / cell_m + 1e-9)) + 1
+    new_ny = int(np.floor((ny - 1) * grid.dy / cell_m + 1e-9)) + 1
+    if new_nx < 2 or new_ny < 2:
+        raise MapError(f"map {grid.name!r}: cell size {cell_m} m leaves fewer than 2x2 cells")
+    col = np.minimum(np.arange(new_nx) * (cell_m / grid.dx), nx - 1)
+    row = np.minimum(np.arange(new_ny) * (cell_m / grid.dy), ny - 1)
+    values = _bilinear(grid.values, col[None, :], row[:, None])
+    meta = {**grid.meta, "resampled_from_m": (grid.dx, grid.dy)}
+    return replace(grid, values=values, dx=float(cell_m), dy=float(cell_m), meta=meta)

@@ -1,0 +1,147 @@
+"""Field sensors: echosounder beam geometry and the measurement model of every sensor.
+
+A sensor reads the map (bilinear) at each beam's footprint along the *true* track and
+adds white noise:
+
+- ``singlebeam``: one beam under the vehicle, noise ``noise_std``;
+- ``multibeam``: ``beams`` beams across track; the noise 1-sigma grows linearly with the
+  across-track distance, from ``noise_std`` at nadir to ``edge_noise_factor * noise_std``
+  at the outermost beam;
+- ``gravimeter``: one reading under the vehicle, noise ``noise_std``, then the first-order
+  lag of :mod:`geofix.sensors.gravimeter`.
+
+``map_error_std`` adds a further white error per sample and beam, standing for the
+difference between the prior map and the real field (a spatially smooth error field
+would be more realistic; white is the simple, documented choice). Order: map value +
+map error + sensor noise, then (gravimeter only) the lag.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from geofix.errors import ConfigError
+from geofix.match.base import footprint_xy
+from geofix.sensors.gravimeter import apply_first_order_lag
+
+if TYPE_CHECKING:
+    from geofix.maps.grid import Grid
+    from geofix.sim.scenario import SensorSpec
+
+
+def sensor_offsets(spec: SensorSpec) -> np.ndarray:
+    """Body-frame footprint offsets of the sensor's beams.
+
+    Single-beam and gravimeter: ``[[0, 0]]``. Multibeam: ``spec.beams`` beams with
+    ``along = 0``; if ``swath_angle_deg`` and ``altitude_m`` are both given, the beam
+    angles are equally spaced over the swath and ``across = altitude * tan(angle)``;
+    otherwise the beams are equally spaced over ``swath_width_m``. One beam sits at nadir.
+
+    Parameters
+    ----------
+    spec : SensorSpec
+        The sensor.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(b, 2)`` offsets ``(across, along)``, metres (across positive to starboard).
+
+    Raises
+    ------
+    ConfigError
+        A multibeam without a swath width (or swath angle and altitude).
+    """
+    if spec.type != "multibeam":
+        return np.zeros((1, 2))
+    unit = np.linspace(-0.5, 0.5, spec.beams) if spec.beams > 1 else np.zeros(1)
+    if spec.swath_angle_deg is not None and spec.altitude_m is not None:
+        across = spec.altitude_m * np.tan(np.radians(spec.swath_angle_deg) * unit)
+    elif spec.swath_width_m is not None:
+        across = spec.swath_width_m * unit
+    else:
+        raise ConfigError(
+            "sensor: a multibeam needs sensor.swath_width_m, or sensor.swath_angle_deg "
+            "with sensor.altitude_m"
+        )
+    return np.column_stack([across, np.zeros_like(across)])
+
+
+def beam_noise_std(offsets: np.ndarray, spec: SensorSpec) -> np.ndarray:
+    """Sensor noise 1-sigma of each beam, map units.
+
+    Parameters
+    ----------
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame offsets, metres.
+    spec : SensorSpec
+        The sensor.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(b,)``: ``noise_std`` for single-beam and gravimeter; for a multibeam
+        ``noise_std * (1 + (edge_noise_factor - 1) * |across| / max|across|)``.
+    """
+    across = np.abs(np.asarray(offsets, dtype=float)[:, 0])
+    std = np.full(across.shape, float(spec.noise_std))
+    if spec.type != "multibeam" or across.max() == 0:
+        return std
+    return std * (1.0 + (spec.edge_noise_factor - 1.0) * across / across.max())
+
+
+def measure_with_unlagged(
+    grid: Grid, truth, heading, offsets, spec: SensorSpec, rng: np.random.Generator, times=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sensor readings along a true track, and the same readings before the lag.
+
+    Parameters are those of :func:`measure`.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(measured, unlagged)``, each ``(n, b)`` map units; they are equal except for a
+        gravimeter with ``lag_s > 0``.
+    """
+    x, y = footprint_xy(np.asarray(truth, dtype=float), np.asarray(heading, dtype=float), offsets)
+    clean = grid.sample(x, y)
+    noise = rng.standard_normal(clean.shape) * beam_noise_std(offsets, spec)
+    map_error = rng.standard_normal(clean.shape) * spec.map_error_std
+    unlagged = clean + map_error + noise
+    if spec.type != "gravimeter" or spec.lag_s <= 0:
+        return unlagged, unlagged.copy()
+    if times is None:
+        raise ValueError("a gravimeter with a lag needs the sample times")
+    return apply_first_order_lag(unlagged, times, spec.lag_s), unlagged
+
+
+def measure(
+    grid: Grid, truth, heading, offsets, spec: SensorSpec, rng: np.random.Generator, times=None
+) -> np.ndarray:
+    """Sensor readings along a true track (see the module docstring for the model).
+
+    Parameters
+    ----------
+    grid : Grid
+        The field the sensor sees (read with bilinear interpolation).
+    truth : array_like
+        ``(n, 2)`` true positions, metres.
+    heading : array_like
+        ``(n,)`` true heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres.
+    spec : SensorSpec
+        Noise, map error and (gravimeter) lag.
+    rng : numpy.random.Generator
+        Source of the noise (sensor noise first, then map error).
+    times : array_like, optional
+        ``(n,)`` sample times, seconds; needed by a gravimeter with ``lag_s > 0``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, b)`` readings in map units; NaN where a footprint is off the map.
+    """
+    return measure_with_unlagged(grid, truth, heading, offsets, spec, rng, times)[0]

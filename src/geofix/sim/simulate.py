@@ -1,0 +1,215 @@
+"""Scenario -> Trial: simulate a mission (true track, INS indication, DVL, measurements).
+
+Trial ``i`` of a scenario uses ``numpy.random.default_rng([seed, i])`` only, so any trial
+is reproducible alone and in any process. That generator is split (``Generator.spawn``)
+into independent streams for the track (start jitter, turns), the INS, the DVL and the
+sensor, so switching the DVL on or changing the sensor leaves the track and the INS
+errors of a trial unchanged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+
+import numpy as np
+
+from geofix.errors import ConfigError, TrackOffMapError
+from geofix.maps.grid import Grid
+from geofix.match.base import footprint_xy
+from geofix.nav.dvl import simulate_dvl
+from geofix.nav.ins import position_sigma, simulate_ins
+from geofix.nav.trajectory import TrueTrajectory, true_trajectory
+from geofix.sensors.echosounder import measure_with_unlagged, sensor_offsets
+from geofix.sim.scenario import Scenario
+from geofix.sim.trial import Trial
+
+
+def prepare_map(scenario: Scenario) -> Grid:
+    """Load and prepare the scenario's map (cut, project, resample) as a :class:`Grid`.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Its ``map`` block says which file, variable, kind, region and cell size (metres).
+
+    Returns
+    -------
+    Grid
+        The prepared map, metric frame.
+    """
+    from geofix.maps.io import load_grid
+
+    spec = scenario.map
+    return load_grid(
+        scenario.map_path(),
+        variable=spec.variable,
+        kind=spec.kind,
+        region=spec.region,
+        resample_m=spec.resample_m,
+    )
+
+
+def start_position(scenario: Scenario, grid: Grid) -> tuple[float, float]:
+    """The nominal start ``(x, y)`` of the true track, metres (before any jitter).
+
+    ``track.start_m`` as given, or ``track.start_cell`` ``[column, row]`` converted with
+    :meth:`Grid.cell_to_xy`.
+
+    Raises
+    ------
+    ConfigError
+        Neither or both of ``track.start_cell`` and ``track.start_m`` are given.
+    """
+    track = scenario.track
+    if (track.start_cell is None) == (track.start_m is None):
+        raise ConfigError(
+            f"{scenario.name}: give exactly one of track.start_cell and track.start_m"
+        )
+    if track.start_m is not None:
+        return float(track.start_m[0]), float(track.start_m[1])
+    x, y = grid.cell_to_xy(track.start_cell[0], track.start_cell[1])
+    return float(x), float(y)
+
+
+def check_track_on_map(grid: Grid, positions, what: str = "track") -> None:
+    """Raise if any position lies off the map or on no-data.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    positions : array_like
+        ``(n, 2)`` positions, or ``(n, b, 2)`` beam footprints, metres; axis 0 is the
+        sample.
+    what : str
+        Name of the track for the message (e.g. ``"true track"``).
+
+    Raises
+    ------
+    TrackOffMapError
+        Naming the first bad sample, its position and the map's extent.
+    """
+    pos = np.asarray(positions, dtype=float)
+    bad = np.isnan(grid.sample(pos[..., 0], pos[..., 1]))
+    if not bad.any():
+        return
+    flat = bad.reshape(bad.shape[0], -1)
+    k = int(np.argmax(flat.any(axis=1)))
+    beam = int(np.argmax(flat[k]))
+    x, y = pos.reshape(pos.shape[0], -1, 2)[k, beam]
+    west, east, south, north = grid.extent
+    where = f" beam {beam}" if flat.shape[1] > 1 else ""
+    raise TrackOffMapError(
+        f"{what} leaves the map (or no-data) at sample {k} of {pos.shape[0]}{where}, "
+        f"({x:.1f}, {y:.1f}) m; map covers x {west:.1f}..{east:.1f}, "
+        f"y {south:.1f}..{north:.1f} m"
+    )
+
+
+def _true_track(scenario: Scenario, grid: Grid, rng: np.random.Generator) -> TrueTrajectory:
+    track = scenario.track
+    jitter = rng.uniform(-track.start_jitter_m, track.start_jitter_m, 2)
+    start = np.asarray(start_position(scenario, grid)) + jitter
+    return true_trajectory(
+        start,
+        track.heading_deg,
+        track.speed_m_s,
+        track.interval_s,
+        track.samples,
+        legs=track.legs,
+        turn_std_deg=track.turn_std_deg,
+        rng=rng,
+    )
+
+
+def _extras(scenario: Scenario, true: TrueTrajectory, unlagged, dvl_rng) -> dict:
+    extras: dict = {"true_velocity": true.velocity}
+    if scenario.dvl is not None:
+        extras["dvl_velocity"] = simulate_dvl(true, scenario.dvl, dvl_rng)
+    if scenario.sensor.type == "gravimeter":
+        extras["unlagged_measured"] = unlagged
+        extras["lag_s"] = float(scenario.sensor.lag_s)
+    return extras
+
+
+def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
+    """Simulate trial ``index`` of a scenario on a prepared map.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The mission family.
+    grid : Grid
+        The prepared map (see :func:`prepare_map`); the sensor reads it along the truth.
+    index : int
+        Trial number; the random generator is ``default_rng([scenario.seed, index])``.
+
+    Returns
+    -------
+    Trial
+        ``noise_std`` is ``hypot(sensor.noise_std, sensor.map_error_std)`` (nadir value
+        for a multibeam); ``sigma_position`` is :func:`geofix.nav.ins.position_sigma`
+        with the nominal distance ``speed * t``. ``extras`` holds ``"true_velocity"``
+        ``(n, 2)`` m/s, ``"dvl_velocity"`` ``(n, 2)`` m/s with a DVL, and for a gravimeter
+        ``"unlagged_measured"`` ``(n, 1)`` and ``"lag_s"``.
+
+    Raises
+    ------
+    TrackOffMapError
+        A beam footprint of the true track is off the map or on no-data.
+    ConfigError
+        The start position or the sensor geometry is not given properly.
+    """
+    track_rng, ins_rng, dvl_rng, sensor_rng = np.random.default_rng([scenario.seed, index]).spawn(4)
+    true = _true_track(scenario, grid, track_rng)
+    offsets = sensor_offsets(scenario.sensor)
+    x, y = footprint_xy(true.positions, true.heading, offsets)
+    check_track_on_map(grid, np.stack([x, y], axis=-1), "true track")
+    ins = simulate_ins(true, scenario.ins, ins_rng)
+    measured, unlagged = measure_with_unlagged(
+        grid, true.positions, true.heading, offsets, scenario.sensor, sensor_rng, true.times
+    )
+    if not np.all(np.isfinite(measured)):
+        k = int(np.argmax(~np.isfinite(measured).all(axis=1)))
+        raise TrackOffMapError(f"true track: measurement not finite at sample {k}")
+    sensor = scenario.sensor
+    return Trial(
+        truth=true.positions,
+        true_heading=true.heading,
+        indicated=ins.indicated,
+        indicated_heading=ins.heading,
+        times=true.times,
+        measured=measured,
+        offsets=offsets,
+        sigma_position=position_sigma(
+            scenario.ins, true.times, distance_m=scenario.track.speed_m_s * true.times
+        ),
+        leg_starts=true.leg_starts,
+        noise_std=float(np.hypot(sensor.noise_std, sensor.map_error_std)),
+        sensor=sensor.type,
+        index=int(index),
+        extras=_extras(scenario, true, unlagged, dvl_rng),
+    )
+
+
+def simulate_trials(
+    scenario: Scenario, grid: Grid, indices: Iterable[int] | None = None
+) -> Iterator[Trial]:
+    """Simulate several trials, one at a time.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The mission family.
+    grid : Grid
+        The prepared map.
+    indices : iterable of int, optional
+        Trial numbers; ``range(scenario.trials)`` by default.
+
+    Yields
+    ------
+    Trial
+        ``simulate_trial(scenario, grid, i)`` for each ``i``.
+    """
+    for index in range(scenario.trials) if indices is None else indices:
+        yield simulate_trial(scenario, grid, index)

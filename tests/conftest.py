@@ -1,0 +1,37 @@
+"""Shared fixtures: seeded generators, a small synthetic map and a small real map."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from geofix.maps import Grid, fractal_terrain, load_grid
+
+# Azores central group (Faial, Pico, Sao Jorge): a 200 km x 200 km box, lon/lat degrees.
+AZORES_SMALL_REGION = (-29.45, -27.15, 37.7, 39.5)
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    """A fresh seeded generator for each test (seed 12345)."""
+    return np.random.default_rng(12345)
+
+
+@pytest.fixture
+def rng_factory():
+    """Make independent seeded generators: ``rng_factory(seed)``."""
+    return lambda seed=0: np.random.default_rng(seed)
+
+
+@pytest.fixture(scope="session")
+def synthetic_grid() -> Grid:
+    """A 128 x 128 fractal seabed, 10 m cells, depth std 5 m around -100 m (seed 0)."""
+    return fractal_terrain((128, 128), 10.0, rng=np.random.default_rng(0), name="synthetic")
+
+
+@pytest.fixture(scope="session")
+def azores_small() -> Grid:
+    """About 200 x 200 cells of the bundled Azores map, projected to 1 km cells."""
+    return load_grid(
+        "builtin:azores", region=AZORES_SMALL_REGION, resample_m=1000.0, name="azores_small"
+    )

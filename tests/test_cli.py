@@ -1,0 +1,134 @@
+"""The command line: the ``geofix run`` JSON contract, listings, and one-line errors."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from geofix.cli import app
+
+runner = CliRunner()
+
+SUCCESS_KEYS = {"20", "40", "60", "80", "100", "0.5c", "1c", "2c", "3c"}
+METHOD_KEYS = {
+    "trials",
+    "mean_error_m",
+    "std_error_m",
+    "median_error_m",
+    "max_error_m",
+    "mean_track_error_m",
+    "max_track_error_m",
+    "success_rate",
+    "mean_time_s",
+    "failures",
+}
+
+
+@pytest.fixture
+def scenario_file(tmp_path):
+    data = {
+        "name": "cli-small",
+        "map": {"path": "builtin:mb_1km"},
+        "track": {
+            "start_cell": [60, 60],
+            "heading_deg": 45,
+            "speed_m_s": 10,
+            "interval_s": 60,
+            "samples": 20,
+        },
+        "sensor": {"type": "singlebeam", "noise_std": 2.0},
+        "ins": {"initial_error_m": [1500, -1000], "velocity_error_m_s": 0.05},
+        "trials": 4,
+        "seed": 3,
+    }
+    path = tmp_path / "scen.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_run_json_contract(scenario_file, tmp_path):
+    out = tmp_path / "out"
+    args = ["run", str(scenario_file), "--method", "tercom", "--method", "tercom:metric=mad"]
+    result = runner.invoke(
+        app, [*args, "--trials", "3", "--jobs", "1", "--out", str(out), "--json"]
+    )
+    assert result.exit_code == 0, result.output
+    payload = json.loads(result.stdout)
+    assert payload["scenario"] == "cli-small"
+    assert payload["trials"] == 3
+    assert set(payload["methods"]) == {"tercom", "tercom:metric=mad"}
+    for stats in payload["methods"].values():
+        assert set(stats) >= METHOD_KEYS
+        assert set(stats["success_rate"]) == SUCCESS_KEYS
+        assert stats["trials"] == 3
+        assert stats["mean_error_m"] < 1000.0  # a fix, not the 1.8 km INS error
+    assert (out / "results.sqlite").exists()
+
+
+def test_json_stdout_is_only_json_in_a_real_process(scenario_file, tmp_path):
+    cmd = [sys.executable, "-m", "geofix", "run", str(scenario_file), "--method", "tercom"]
+    cmd += ["--trials", "2", "--jobs", "1", "--out", str(tmp_path / "o"), "--json"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["trials"] == 2
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"map": {"path": "nowhere.nc"}}, "nowhere.nc"),
+        ({"map": {"path": "builtin:mb_1km", "variable": "bogus"}}, "bogus"),
+        (
+            {
+                "track": {
+                    "start_cell": [158, 158],
+                    "heading_deg": 45,
+                    "speed_m_s": 10,
+                    "interval_s": 60,
+                    "samples": 20,
+                }
+            },
+            "leaves the map",
+        ),
+        ({"sensor": {"type": "sonar"}}, "sensor.type"),
+        ({"trials": "many"}, "trials"),
+        ({"bogus_key": 1}, "bogus_key"),
+    ],
+)
+def test_bad_input_gives_one_clear_line(scenario_file, tmp_path, change, message):
+    data = yaml.safe_load(scenario_file.read_text())
+    data.update(change)
+    scenario_file.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    result = runner.invoke(app, ["run", str(scenario_file), "-m", "tercom", "--out", str(out)])
+    assert result.exit_code == 2
+    assert "Traceback" not in result.output
+    assert message in result.output
+    assert not (out / "results.sqlite").exists()
+
+
+def test_unknown_method_and_missing_scenario(scenario_file, tmp_path):
+    result = runner.invoke(app, ["run", str(scenario_file), "-m", "nosuch", "--out", str(tmp_path)])
+    assert result.exit_code == 2
+    assert "unknown method" in result.output
+    result = runner.invoke(app, ["run", str(tmp_path / "none.yaml"), "-m", "tercom"])
+    assert result.exit_code == 2
+    assert "cannot read scenario" in result.output
+
+
+def test_methods_lists_settings_with_defaults():
+    result = runner.invoke(app, ["methods"])
+    assert result.exit_code == 0
+    assert "tercom" in result.output
+    assert "window_sigma" in result.output
+    assert "'msd'" in result.output
+
+
+def test_maps_lists_bundled_maps_with_provenance():
+    result = runner.invoke(app, ["maps"])
+    assert result.exit_code == 0
+    for name in ("azores", "alaska_gravity", "navo_flat"):
+        assert name in result.output
