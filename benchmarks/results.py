@@ -36,6 +36,7 @@ disagree.
 def load_sections() -> dict:
     """Import every section module, keyed by file stem, ordered by ``ORDER``."""
     modules = {}
+    sys.path.insert(0, str(SECTIONS))
     sys.path.insert(0, str(HERE))
     for path in sorted(SECTIONS.glob("*.py")):
         if path.stem.startswith("_"):

@@ -164,17 +164,27 @@ def tercom_cost_surface(
     values = np.ascontiguousarray(grid.values)
     return _cost_kernel(
         values,
-        col,
-        row,
-        measured[keep],
-        np.asarray(ox, float) / grid.dx,
-        np.asarray(oy, float) / grid.dy,
+        np.ascontiguousarray(col),
+        np.ascontiguousarray(row),
+        np.ascontiguousarray(measured[keep]),
+        np.ascontiguousarray(ox, dtype=float) / grid.dx,
+        np.ascontiguousarray(oy, dtype=float) / grid.dy,
         _METRICS[metric],
         float(min_valid_fraction),
     )
 
 
-@numba.njit(parallel=True, cache=True, fastmath=False)
+_VEC = numba.types.Array(numba.float64, 1, "C")
+_KERNEL_SIGNATURE = numba.float64[:, :](
+    numba.types.Array(numba.float64, 2, "C", readonly=True),  # the Grid's read-only values
+    *(_VEC,) * 5,
+    numba.int64,
+    numba.float64,
+)
+
+
+# Compiled eagerly (and cached on disk) so that no match call pays for compilation.
+@numba.njit(_KERNEL_SIGNATURE, parallel=True, cache=True)
 def _cost_kernel(values, col, row, h, ocol, orow, metric, min_valid_fraction):  # pragma: no cover
     ny, nx = values.shape
     n = h.shape[0]
