@@ -1,0 +1,404 @@
+"""GA-SCA: multibeam matching by a genetic algorithm refined with the sine-cosine algorithm.
+
+Source 000 (Zhang, Zhang, Zhang, J. Chinese Inertial Technology 30(4), 2022;
+ALGORITHMS.md section 3). The matched track is a four-parameter transform of the
+indicated track,
+
+    p' = p_0 + alpha * R(theta) (p - p_0) + (t_x, t_y),
+
+with ``R`` the counter-clockwise rotation and the pivot ``p_0`` the *first point of the
+indicated track* (so ``t_x, t_y`` is the correction of the start, ``alpha`` absorbs a
+speed error and ``theta`` a heading error).
+
+Three depth sequences are matched at once: the centre beam and the beams nearest to
+``+-Delta d`` across track, ``Delta d = mu1 + mu2 * sigma`` (eq. 6; ``C`` if that is not
+larger than the cell size ``C``), ``sigma`` the standard deviation of the map depths over
+the search area (the indicated track's bounding box widened by the search box). The
+beams are the MatchProblem's own beams nearest to ``+-Delta d`` (no interpolation
+between beams: a beam is a measurement, an interpolated one would mix two footprints).
+A single-beam problem falls back to one sequence of weight 1.
+
+Costs (lower is better; the source's GA fitness is the reciprocal ``f_GA = 1 / cost``,
+and the rank-based tournament selection used here depends only on the order):
+
+- new fitness (eq. 8): ``sum_i w_i sum_j lambda^j |c_ij - c*_ij| / N``,
+- plain fitness (Table 4, variants C and D): ``sum_i sum_j |c_ij - c*_ij|``,
+- SCA fitness (eq. 9): ``sum_i w_i max_j |c_ij - c*_ij|``,
+
+with ``c`` the map (bilinear) along the transformed track and ``c*`` the measured depth.
+Missing measurements are skipped; a candidate whose map look-ups are valid for fewer
+than ``min_valid_fraction`` of the measured samples (off the map, on no-data) gets an
+infinite cost.
+
+The variants of the source's Table 4 are settings of one matcher: ``variant="A"`` full
+method (new fitness + SCA), ``"B"`` GA + new fitness, ``"C"`` GA + SCA (plain fitness),
+``"D"`` plain GA with the plain fitness.
+
+What the source leaves out, and what is used instead (all constructor settings): a
+real-coded GA with binary tournament selection, blend crossover (BLX-0.25) and Gaussian
+mutation, one elite; the SCA (Mirjalili 2016) works in coordinates normalised to its box
+(elite at the centre, half-widths ``0.1 eps_x, 0.1 eps_y, 0.2 eps_alpha, 0.2 eps_theta``)
+so that ``r3 * P`` is meaningful for the scale ``alpha`` near 1, and is clipped to that
+box; its initial population contains the elite; its best (by ``f_SCA``) replaces the
+elite and its final population joins the GA population for selection. Stop rule: the
+best cost seen has not improved by more than ``tolerance`` (relative) for
+``stall_generations`` generations, or ``max_generations`` is reached; ``iterations`` in
+the diagnostics is the generation of the last such improvement (the source's
+"iterations at convergence"), ``generations`` the number run.
+
+Each generation's population (and each SCA step) is scored in one vectorised bilinear
+look-up of all individuals x samples x sequences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+from geofix.errors import ConfigError, MatchError
+from geofix.match._affine import (
+    adaptive_spacing,
+    beam_positions,
+    nearest_beams,
+    transform_tracks,
+    translation_covariance,
+    window_std,
+)
+from geofix.match.base import Fix, MatchProblem
+from geofix.match.registry import register
+
+_VARIANTS = {"A": (True, True), "B": (True, False), "C": (False, True), "D": (False, False)}
+
+
+@dataclass(frozen=True)
+class _Context:
+    """Per-problem constants of one match."""
+
+    problem: MatchProblem
+    pivot: np.ndarray
+    beams: np.ndarray
+    weights: np.ndarray
+    decay: np.ndarray
+    measured: np.ndarray
+    valid: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    spacing_m: float
+    counter: list = field(default_factory=lambda: [0])
+
+
+@register
+@dataclass(frozen=True)
+class GaSca:
+    """Genetic algorithm with sine-cosine refinement of the elite (source 000).
+
+    Parameters
+    ----------
+    variant : str
+        ``"A"`` full, ``"B"`` GA + new fitness, ``"C"`` GA + SCA, ``"D"`` plain GA.
+    population : int
+        GA population size (not given by the source). With 60 and gentler mutation
+        (rate 0.1, scale 0.1) the GA stalled in local minima of the smooth benchmark
+        map at a (150, 150) m initial error; 200 with the mutation below did not.
+    max_generations : int
+        Upper bound on GA generations.
+    stall_generations : int
+        Stop after this many generations without a relative improvement > ``tolerance``.
+    tolerance : float
+        Relative improvement of the best cost that counts as progress.
+    crossover_rate, mutation_rate : float
+        Probability of crossing a pair, of mutating a gene.
+    mutation_scale : float
+        Mutation 1-sigma as a share of the box half-width (0.3 with ``mutation_rate``
+        0.2: large jumps keep exploring the box while the elite and SCA refine).
+    weights : tuple of float
+        ``(w1, w2, w3)`` of the centre, starboard and port sequences; ``w1 > w2, w3``,
+        normalised to sum 1 (source: unspecified; 0.5/0.25/0.25 is the simplest choice
+        that trusts the centre beam most).
+    decay : float
+        ``lambda`` of eq. 8, weight ``lambda^j`` of sample ``j = 1..N`` (source:
+        unspecified; 0.98 gives the last of 15 samples 74 % of the first's weight).
+    mu1 : float
+        Constant of ``Delta d``, metres (source: unspecified).
+    mu2 : float
+        Gain of ``Delta d`` on the depth std, metres per metre (source: unspecified;
+        with ``mu1 = mu2 = 2`` a 1 m map with std 1.45 m / 3.32 m gives 4.9 m / 8.6 m).
+    window_sigma : float
+        Translation half-box ``eps_x = eps_y`` in prior sigmas (largest
+        ``sigma_position`` of the problem).
+    eps_xy_m : float
+        Translation half-box, metres; overrides ``window_sigma`` when > 0.
+    eps_scale : float
+        Half-box of ``alpha`` around 1 (0.02: a 2 % speed error).
+    eps_rotation_deg : float
+        Half-box of ``theta``, degrees (2: the heading error TERCOM already fails at).
+    sca_population, sca_iterations : int
+        SCA population and iterations ``T`` per generation (source: unspecified; 10 and
+        5 keep the refinement to about a quarter of a generation's look-ups).
+    sca_a : float
+        SCA constant ``a`` of ``r1 = a (1 - t / T)`` (Mirjalili's 2).
+    min_valid_fraction : float
+        Share of valid map look-ups below which a candidate is discarded.
+    exclusion_cells : float
+        Distance, in cells, beyond which a visited candidate counts as a rival minimum
+        (widened to 3 sigma of the fix's covariance when that is larger).
+    ambiguity_mass : float
+        Relative pseudo-likelihood of the best rival above which the fix is ambiguous.
+    """
+
+    name: ClassVar[str] = "ga-sca"
+    recursive: ClassVar[bool] = False
+
+    variant: str = "A"
+    population: int = 200
+    max_generations: int = 600
+    stall_generations: int = 100
+    tolerance: float = 1e-4
+    crossover_rate: float = 0.8
+    mutation_rate: float = 0.2
+    mutation_scale: float = 0.3
+    weights: tuple = (0.5, 0.25, 0.25)
+    decay: float = 0.98
+    mu1: float = 2.0
+    mu2: float = 2.0
+    window_sigma: float = 3.0
+    eps_xy_m: float = 0.0
+    eps_scale: float = 0.02
+    eps_rotation_deg: float = 2.0
+    sca_population: int = 10
+    sca_iterations: int = 5
+    sca_a: float = 2.0
+    min_valid_fraction: float = 0.9
+    exclusion_cells: float = 10.0
+    ambiguity_mass: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.variant not in _VARIANTS:
+            raise ConfigError(f"ga-sca: variant must be one of A, B, C, D, got {self.variant!r}")
+        if self.population < 4 or self.max_generations < 1 or self.sca_population < 2:
+            raise ConfigError("ga-sca: population >= 4, sca_population >= 2, generations >= 1")
+        w = tuple(float(v) for v in self.weights)
+        if len(w) != 3 or min(w) < 0 or not (w[0] > w[1] and w[0] > w[2]):
+            raise ConfigError(f"ga-sca: weights need three values with w1 > w2, w3; got {w}")
+        if not 0 < self.decay <= 1:
+            raise ConfigError(f"ga-sca: decay must be in (0, 1], got {self.decay}")
+
+    @property
+    def uses_new_fitness(self) -> bool:
+        """True for variants A and B (eq. 8), False for C and D (plain sum)."""
+        return _VARIANTS[self.variant][0]
+
+    @property
+    def uses_sca(self) -> bool:
+        """True for variants A and C."""
+        return _VARIANTS[self.variant][1]
+
+    # ------------------------------------------------------------------ main loop
+    def match(self, problem: MatchProblem, rng: np.random.Generator) -> Fix:
+        """Search the four-parameter transform; return the transformed indicated track."""
+        ctx = self._context(problem)
+        pop = rng.uniform(ctx.lower, ctx.upper, size=(self.population, 4))
+        cost, _, mad = self._evaluate(ctx, pop)
+        archive = [(pop, mad)]
+        best_x, best_cost = pop[np.argmin(cost)].copy(), float(np.min(cost))
+        last_gain, generation = 0, 0
+        for generation in range(1, self.max_generations + 1):
+            pop, cost, mad = self._generation(ctx, pop, cost, rng, archive)
+            k = int(np.argmin(cost))
+            if cost[k] < best_cost * (1 - self.tolerance):
+                last_gain = generation
+            if cost[k] < best_cost:
+                best_x, best_cost = pop[k].copy(), float(cost[k])
+            if generation - last_gain >= self.stall_generations:
+                break
+        if not np.isfinite(best_cost):
+            raise MatchError("ga-sca: no candidate in the search box lies on valid map data")
+        return self._fix(ctx, best_x, best_cost, archive, last_gain, generation)
+
+    def _generation(self, ctx, pop, cost, rng, archive):
+        """One GA generation: SCA on the elite, selection, crossover, mutation."""
+        k = int(np.argmin(cost))
+        elite, elite_cost = pop[k].copy(), cost[k]
+        pool, pool_cost = pop, cost
+        if self.uses_sca:
+            elite, elite_cost, sca_pop, sca_cost = self._sca(ctx, elite, rng)
+            pool = np.vstack([np.delete(pop, k, axis=0), elite[None], sca_pop])
+            pool_cost = np.concatenate([np.delete(cost, k), [elite_cost], sca_cost])
+        parents = pool[_tournament(pool_cost, 2 * (self.population // 2), rng)]
+        children = self._mutate(self._crossover(parents, rng, ctx), rng, ctx)
+        children = children[: self.population - 1]
+        new_cost, _, new_mad = self._evaluate(ctx, children)
+        archive.append((children, new_mad))
+        return (
+            np.vstack([elite[None], children]),
+            np.concatenate([[elite_cost], new_cost]),
+            new_mad,
+        )
+
+    # ------------------------------------------------------------------ operators
+    def _crossover(self, parents, rng, ctx):
+        """Blend crossover (BLX-0.25) of consecutive parent pairs."""
+        a, b = parents[0::2], parents[1::2]
+        beta = rng.uniform(-0.25, 1.25, size=a.shape)
+        cross = rng.random(len(a)) < self.crossover_rate
+        beta[~cross] = 1.0
+        kids = np.vstack([beta * a + (1 - beta) * b, (1 - beta) * a + beta * b])
+        return np.clip(kids, ctx.lower, ctx.upper)
+
+    def _mutate(self, kids, rng, ctx):
+        """Gaussian mutation of each gene with probability ``mutation_rate``."""
+        half = 0.5 * (ctx.upper - ctx.lower)
+        hit = rng.random(kids.shape) < self.mutation_rate
+        step = rng.standard_normal(kids.shape) * self.mutation_scale * half
+        return np.clip(kids + hit * step, ctx.lower, ctx.upper)
+
+    def _sca(self, ctx, elite, rng):
+        """Sine-cosine refinement around the elite; returns new elite and SCA population."""
+        half = 0.5 * (ctx.upper - ctx.lower) * np.array([0.1, 0.1, 0.2, 0.2])
+        z = rng.uniform(-1.0, 1.0, size=(self.sca_population, 4))
+        z[0] = 0.0
+        x = elite + z * half
+        cost, sca_cost = self._evaluate(ctx, x)[:2]
+        best = int(np.argmin(sca_cost))
+        p, p_cost, p_ga = z[best].copy(), sca_cost[best], cost[best]
+        for t in range(self.sca_iterations):
+            r1 = self.sca_a * (1.0 - t / self.sca_iterations)
+            r2 = rng.uniform(0.0, 2 * np.pi, z.shape)
+            r3 = rng.uniform(0.0, 2.0, z.shape)
+            wave = np.where(rng.random(z.shape) < 0.5, np.sin(r2), np.cos(r2))
+            z = np.clip(z + r1 * wave * np.abs(r3 * p - z), -1.0, 1.0)
+            x = elite + z * half
+            cost, sca_cost = self._evaluate(ctx, x)[:2]
+            k = int(np.argmin(sca_cost))
+            if sca_cost[k] < p_cost:
+                p, p_cost, p_ga = z[k].copy(), sca_cost[k], cost[k]
+        inside = np.all((x >= ctx.lower) & (x <= ctx.upper), axis=1)
+        new_elite = elite + p * half
+        if not np.all((new_elite >= ctx.lower) & (new_elite <= ctx.upper)):
+            new_elite, p_ga = np.clip(new_elite, ctx.lower, ctx.upper), None
+        if p_ga is None:
+            p_ga = self._evaluate(ctx, new_elite[None])[0][0]
+        return new_elite, p_ga, x[inside], cost[inside]
+
+    # ------------------------------------------------------------------ costs
+    def _evaluate(self, ctx: _Context, params: np.ndarray):
+        """GA cost, SCA cost and mean absolute difference of every individual.
+
+        One bilinear look-up for all individuals x samples x sequences.
+        """
+        problem = ctx.problem
+        tracks = transform_tracks(problem.indicated, params, ctx.pivot)
+        x, y = beam_positions(problem, tracks, params[:, 3], ctx.beams)
+        diff = np.abs(problem.grid.sample(x, y) - ctx.measured)  # (P, n, s)
+        ctx.counter[0] += diff.shape[0]
+        ok = np.isfinite(diff)
+        d = np.where(ok, diff, 0.0)
+        count = ok.sum(axis=1)  # (P, s)
+        share = ok.sum(axis=(1, 2)) / ctx.valid.sum()
+        with np.errstate(invalid="ignore", divide="ignore"):
+            if self.uses_new_fitness:
+                seq = (d * ctx.decay[None, :, None]).sum(axis=1) / count
+                ga = (seq * ctx.weights).sum(axis=1)
+            else:
+                ga = d.sum(axis=(1, 2)) * ctx.valid.sum() / count.sum(axis=1)
+            sca = (d.max(axis=1) * ctx.weights).sum(axis=1)
+            mad = d.sum(axis=(1, 2)) / count.sum(axis=1)
+        bad = (share < self.min_valid_fraction) | (count == 0).any(axis=1)
+        inf = np.inf
+        return np.where(bad, inf, ga), np.where(bad, inf, sca), np.where(bad, inf, mad)
+
+    # ------------------------------------------------------------------ set-up, result
+    def _context(self, problem: MatchProblem) -> _Context:
+        """Search box, sequences, weights and decay for one problem."""
+        if problem.n < 2:
+            raise MatchError("ga-sca: need at least two samples")
+        eps = (
+            self.eps_xy_m
+            if self.eps_xy_m > 0
+            else self.window_sigma * float(np.max(problem.sigma_position))
+        )
+        eps = max(eps, problem.grid.cell_size)
+        eps_rot = np.radians(self.eps_rotation_deg)
+        lower = np.array([-eps, -eps, 1.0 - self.eps_scale, -eps_rot])
+        upper = np.array([eps, eps, 1.0 + self.eps_scale, eps_rot])
+        spacing = adaptive_spacing(
+            window_std(problem, eps), problem.grid.cell_size, self.mu1, self.mu2
+        )
+        beams = nearest_beams(problem.offsets, spacing)
+        w = np.asarray(self.weights, float)[: len(beams)]
+        measured = problem.measured[:, beams]
+        valid = np.isfinite(measured)
+        if valid.sum() < 2:
+            raise MatchError("ga-sca: fewer than two valid measurements")
+        return _Context(
+            problem=problem,
+            pivot=problem.indicated[0].astype(float),
+            beams=beams,
+            weights=w / w.sum(),
+            decay=self.decay ** np.arange(1, problem.n + 1),
+            measured=measured,
+            valid=valid,
+            lower=lower,
+            upper=upper,
+            spacing_m=spacing,
+        )
+
+    def _fix(self, ctx, best_x, best_cost, archive, iterations, generations) -> Fix:
+        problem = ctx.problem
+        track = transform_tracks(problem.indicated, best_x[None], ctx.pivot)[0]
+        heading = problem.heading - best_x[3]
+        covariance = translation_covariance(problem, track, heading, ctx.beams)
+        radius = self.exclusion_cells * problem.grid.cell_size
+        if covariance is not None:
+            radius = max(radius, 3.0 * float(np.sqrt(np.linalg.eigvalsh(covariance)[-1])))
+        ambiguous = self._ambiguous(ctx, best_x, archive, radius)
+        return Fix(
+            track=track,
+            covariance=covariance,
+            cost=best_cost,
+            evaluations=int(ctx.counter[0] * ctx.valid.sum()),
+            ambiguous=ambiguous,
+            diagnostics={
+                "iterations": int(iterations),
+                "generations": int(generations),
+                "candidates": int(ctx.counter[0]),
+                "params": {
+                    "t_x": float(best_x[0]),
+                    "t_y": float(best_x[1]),
+                    "alpha": float(best_x[2]),
+                    "theta_rad": float(best_x[3]),
+                },
+                "pivot": ctx.pivot.copy(),
+                "spacing_m": ctx.spacing_m,
+                "beams": ctx.beams.tolist(),
+                "variant": self.variant,
+            },
+        )
+
+    def _ambiguous(self, ctx, best_x, archive, radius: float) -> bool:
+        """A visited candidate beyond ``radius`` metres scores nearly as well as the fix.
+
+        "Nearly" is judged with a Laplace pseudo-likelihood of the mean absolute
+        difference: the rival is within ``ambiguity_mass`` of the fix's likelihood.
+        """
+        params = np.vstack([a[0] for a in archive])
+        mad = np.concatenate([a[1] for a in archive])
+        ends = transform_tracks(ctx.problem.indicated[-1:], params, ctx.pivot)[:, 0]
+        best_end = transform_tracks(ctx.problem.indicated[-1:], best_x[None], ctx.pivot)[0, 0]
+        far = np.hypot(*(ends - best_end).T) > radius
+        near_mad = mad[~far]
+        if not far.any() or not np.isfinite(mad[far]).any() or not near_mad.size:
+            return False
+        best_mad = float(np.nanmin(near_mad))
+        scale = max(ctx.problem.noise_std * np.sqrt(2 / np.pi), best_mad, 1e-9)
+        gap = ctx.valid.sum() * (float(np.nanmin(mad[far])) - best_mad) / scale
+        return bool(gap < np.log(1.0 / self.ambiguity_mass))
+
+
+def _tournament(cost: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices of ``count`` winners of binary tournaments (lower cost wins)."""
+    a = rng.integers(0, len(cost), count)
+    b = rng.integers(0, len(cost), count)
+    return np.where(cost[a] <= cost[b], a, b)
