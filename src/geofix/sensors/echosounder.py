@@ -37,7 +37,8 @@ def sensor_offsets(spec: SensorSpec) -> np.ndarray:
     Single-beam and gravimeter: ``[[0, 0]]``. Multibeam: ``spec.beams`` beams with
     ``along = 0``; if ``swath_angle_deg`` and ``altitude_m`` are both given, the beam
     angles are equally spaced over the swath and ``across = altitude * tan(angle)``;
-    otherwise the beams are equally spaced over ``swath_width_m``. One beam sits at nadir.
+    otherwise the beams are equally spaced over ``swath_width_m``. With an odd beam count
+    the middle beam sits at nadir.
 
     Parameters
     ----------
