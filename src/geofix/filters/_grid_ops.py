@@ -1,0 +1,141 @@
+"""Numerical kernels of the point-mass filter, all on log-densities.
+
+A point-mass grid is ``N x N`` nodes along two orthonormal axes (the columns of ``axes``),
+``spacing`` metres apart along each, centred on ``centre``. Node ``[i, j]`` sits at
+``centre + axes @ ((i - m) * spacing[0], (j - m) * spacing[1])`` with ``m = (N - 1) / 2``.
+Weights are kept as natural logarithms normalised to ``logsumexp = 0``; no function here
+takes the exponential of anything but ``log_weight - max(log_weight)``, so a density
+however peaked never underflows to an all-zero grid, and never produces NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import correlate1d, map_coordinates
+
+THREE_TAP_MAX_SIGMA = 0.8
+"""Largest kernel sigma (in nodes) for the three-tap kernel; wider ones are sampled Gaussians
+(at 0.8 node both have the exact variance ``sigma^2`` to better than 1e-5)."""
+
+
+def node_offsets(points: int, spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Node coordinates along each grid axis relative to the centre, metres, ``(N,)`` each."""
+    steps = np.arange(points) - 0.5 * (points - 1)
+    return steps * spacing[0], steps * spacing[1]
+
+
+def node_positions(centre, axes, spacing, points: int) -> np.ndarray:
+    """Absolute ``(x, y)`` of every node, metres, shape ``(N, N, 2)``."""
+    u, v = node_offsets(points, spacing)
+    return centre + u[:, None, None] * axes[:, 0] + v[None, :, None] * axes[:, 1]
+
+
+def normalise(log_weight: np.ndarray) -> np.ndarray:
+    """Log-weights shifted so that they sum (in linear space) to one."""
+    top = log_weight.max()
+    return log_weight - (top + np.log(np.exp(log_weight - top).sum()))
+
+
+def gaussian_log_density(positions, mean, cov) -> np.ndarray:
+    """Log of the 2-D normal density ``N(mean, cov)`` at ``positions`` ``(..., 2)``, 1/m^2."""
+    d = np.asarray(positions, dtype=float) - mean
+    inv = np.linalg.inv(cov)
+    quad = np.einsum("...i,ij,...j->...", d, inv, d)
+    return -0.5 * quad - 0.5 * np.log(np.linalg.det(2.0 * np.pi * cov))
+
+
+def moments(log_weight, centre, axes, spacing) -> tuple[np.ndarray, np.ndarray]:
+    """Mean ``(2,)`` (metres) and covariance ``(2, 2)`` (m^2) of a normalised grid.
+
+    The covariance includes the grid's own resolution, ``spacing^2 / 12`` per axis (the
+    variance of a position spread uniformly over one node's cell), so that a posterior
+    collapsed on one node still reports the uncertainty its grid can resolve.
+    """
+    w = np.exp(log_weight - log_weight.max())
+    w /= w.sum()
+    u, v = node_offsets(w.shape[0], spacing)
+    wu, wv = w.sum(axis=1), w.sum(axis=0)
+    mu = np.array([wu @ u, wv @ v])
+    du, dv = u - mu[0], v - mu[1]
+    cuv = du @ w @ dv
+    local = np.array([[wu @ du**2, cuv], [cuv, wv @ dv**2]])
+    local += np.diag(np.asarray(spacing, float) ** 2 / 12.0)
+    return centre + axes @ mu, axes @ local @ axes.T
+
+
+def mass_beyond(log_weight, centre, axes, spacing, point, radius: float) -> float:
+    """Share of the grid's probability farther than ``radius`` metres from ``point``."""
+    w = np.exp(log_weight - log_weight.max())
+    u, v = node_offsets(w.shape[0], spacing)
+    p = axes.T @ (np.asarray(point, float) - centre)
+    far = (u[:, None] - p[0]) ** 2 + (v[None, :] - p[1]) ** 2 > radius**2
+    return float(w[far].sum() / w.sum())
+
+
+def motion_kernel(sigma_nodes: float) -> np.ndarray:
+    """A symmetric discrete kernel of variance ``sigma_nodes^2`` (node units), summing to one.
+
+    Three taps ``[a, 1 - 2a, a]`` with ``a = sigma^2 / 2`` below
+    :data:`THREE_TAP_MAX_SIGMA` (exact variance even for a motion much smaller than a
+    node); above it a Gaussian sampled out to 5 sigma, convolved with such a three-tap
+    kernel that makes up the variance lost to sampling and truncation, so the variance
+    is exact there too.
+    """
+    s = float(sigma_nodes)
+    if s <= THREE_TAP_MAX_SIGMA:
+        a = 0.5 * s * s
+        return np.array([a, 1.0 - 2.0 * a, a])
+    half = int(np.ceil(5.0 * s))
+    u = np.arange(-half, half + 1)
+    k = np.exp(-0.5 * (u / s) ** 2)
+    k /= k.sum()
+    a = 0.5 * max(s * s - float(k @ u**2), 0.0)
+    return np.convolve(k, [a, 1.0 - 2.0 * a, a])
+
+
+def convolve_log(log_weight: np.ndarray, kernels: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Convolve a log-density with a separable kernel, staying finite everywhere.
+
+    The convolution runs in linear space on ``exp(log_weight - max)`` (two 1-D passes,
+    exact sums of non-negative terms, mass leaving the grid is lost). Where that underflows
+    to zero the result is bounded below by the node's own contribution,
+    ``log_weight + log(centre tap 0) + log(centre tap 1)``, which is finite.
+    """
+    top = log_weight.max()
+    p = np.exp(log_weight - top)
+    p = correlate1d(p, kernels[0], axis=0, mode="constant")
+    p = correlate1d(p, kernels[1], axis=1, mode="constant")
+    floor = log_weight - top + sum(np.log(k[k.size // 2]) for k in kernels)
+    with np.errstate(divide="ignore"):
+        logp = np.where(p > 0.0, np.log(np.maximum(p, np.finfo(float).tiny)), -np.inf)
+    return normalise(np.maximum(logp, floor) + top)
+
+
+def resample_grid(log_weight, old: tuple, new: tuple, fallback: tuple) -> np.ndarray:
+    """Move a log-density from grid ``old`` onto grid ``new`` by linear interpolation.
+
+    Parameters
+    ----------
+    log_weight : numpy.ndarray
+        ``(N, N)`` normalised log-weights on ``old``.
+    old, new : tuple
+        ``(centre (2,), axes (2, 2), spacing (2,))`` of each grid, metres.
+    fallback : tuple
+        ``(mean (2,), cov (2, 2))`` of a Gaussian used for new nodes outside the old grid
+        (never above the old grid's smallest density).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N, N)`` normalised log-weights on ``new``.
+    """
+    n = log_weight.shape[0]
+    xy = node_positions(*new, n)
+    log_density = log_weight - np.log(np.prod(old[2]))
+    frac = ((xy - old[0]) @ old[1]) / old[2] + 0.5 * (n - 1)
+    inside = np.all((frac >= 0.0) & (frac <= n - 1), axis=-1)
+    coords = np.moveaxis(frac, -1, 0)
+    values = map_coordinates(log_density, coords, order=1, mode="nearest")
+    outside = np.minimum(gaussian_log_density(xy, *fallback), log_density.min())
+    values = np.where(inside, values, outside)
+    return normalise(values + np.log(np.prod(new[2])))

@@ -1,0 +1,266 @@
+r"""The point-mass filter (PMF): Bayes' recursion for the 2-D position on a moving grid.
+
+The posterior of the vehicle position is held as log-weights on an ``N x N`` grid of
+position hypotheses (Bergman 1999; Anonsen & Hallingstad for HUGIN). Each sample:
+
+- **predict**: the grid is moved by the INS displacement (exact: only its centre moves)
+  and the weights are convolved with the INS-error motion kernel, an isotropic Gaussian
+  of per-axis variance ``Motion.process_var`` (separable, so two 1-D passes along the grid
+  axes whatever their orientation);
+- **update**: the field every beam would read from every node is taken from the map at
+  once (:func:`~geofix.filters.measurement.predict_measurements`) and the Gaussian
+  log-likelihood (:func:`~geofix.filters.measurement.log_likelihood`, off-map footprints
+  penalised) is added to the log-weights. The variance is the sensor's plus the map's
+  (``Observation.noise_var``) plus, by default, the spread of the field within one grid
+  node (``discretisation_noise``; see :class:`Pmf`).
+
+Everything stays in log space (:mod:`geofix.filters._grid_ops`), so a likelihood however
+peaked gives no underflow and no NaN. The convolution is two direct 1-D passes
+(``scipy.ndimage.correlate1d``) rather than an FFT: profiled on the 61 x 61 grid with
+kernels of 3 to 73 taps it takes 0.4-0.9 ms a step against 0.5-1.5 ms for
+``scipy.signal.fftconvolve``, and as a sum of non-negative terms it is exact in the tails,
+where FFT round-off (1e-16 of the peak) would plant mass that later likelihoods, added in
+log space, could amplify.
+
+**The grid follows the posterior.** Before each prediction the posterior mean ``m`` and
+covariance ``P`` are computed; the ideal grid is centred on ``m``, its axes along the
+eigenvectors of ``P + q I`` (``q`` the coming process variance) and its half-extent
+``extent_sigmas`` standard deviations along each (spacing ``2 k sigma_i / (N - 1)``, never
+below ``min_spacing_cells`` map cells). The log-density is moved onto the ideal grid by
+linear interpolation when the current grid is off by more than ``regrid_ratio`` in node
+spacing (any direction) or by ``regrid_shift`` of its half-extent in position; the zoom is
+limited to ``max_zoom`` per step. A converged posterior thus lives on a small, fine grid;
+a spreading or multi-modal one on a wide, coarse grid.
+
+**Integrity.** :meth:`Pmf.is_ambiguous` is True when more than ``ambiguity_mass`` of the
+posterior lies farther than ``ambiguity_radius_cells`` map cells from the posterior mean
+(the reported fix): a multi-modal posterior, or one too wide to trust at that radius.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+import numpy as np
+
+from geofix.errors import ConfigError, MatchError
+from geofix.filters import _grid_ops as ops
+from geofix.filters.base import Motion, Observation, RecursiveFilter
+from geofix.filters.measurement import log_likelihood, predict_measurements
+from geofix.maps.grid import Grid
+from geofix.match.base import MatchProblem
+from geofix.match.registry import register
+
+
+@dataclass(frozen=True, eq=False)
+class PmfState:
+    """An immutable point-mass posterior.
+
+    Parameters
+    ----------
+    log_weight : numpy.ndarray
+        ``(N, N)`` normalised log-weights of the nodes (``logsumexp = 0``).
+    centre : numpy.ndarray
+        ``(2,)`` absolute position of the middle node, metres.
+    axes : numpy.ndarray
+        ``(2, 2)`` orthonormal grid directions as columns (``x, y`` components).
+    spacing : numpy.ndarray
+        ``(2,)`` node spacing along each grid axis, metres.
+    cell : float
+        Map cell size, metres (sets the spacing floor and the ambiguity radius).
+    evaluations : int
+        Node likelihoods evaluated so far.
+    regrids : int
+        Times the log-density was moved onto a new grid.
+    """
+
+    log_weight: np.ndarray
+    centre: np.ndarray
+    axes: np.ndarray
+    spacing: np.ndarray
+    cell: float
+    evaluations: int = 0
+    regrids: int = 0
+
+    @property
+    def frame(self) -> tuple:
+        """``(centre, axes, spacing)`` of the grid."""
+        return self.centre, self.axes, self.spacing
+
+    @property
+    def points(self) -> int:
+        """Nodes per axis ``N``."""
+        return self.log_weight.shape[0]
+
+
+@register
+@dataclass(frozen=True)
+class Pmf(RecursiveFilter):
+    """Point-mass filter settings (defaults are documented choices, see the module text).
+
+    Parameters
+    ----------
+    points : int
+        Nodes per grid axis ``N`` (odd, at least 5). 61 resolves a converged Gaussian
+        with 6 nodes per sigma at ``extent_sigmas = 5``.
+    extent_sigmas : float
+        Half-extent of the grid in posterior standard deviations along each principal
+        axis (also of the prior grid, in prior sigmas).
+    min_spacing_cells : float
+        Floor of the node spacing, map cells.
+    regrid_ratio : float
+        Move to the ideal grid when the node spacing differs from it by more than this
+        factor in any direction.
+    regrid_shift : float
+        ... or when the posterior mean has left the middle by more than this share of the
+        grid's half-extent.
+    max_zoom : float
+        Largest change of node spacing in one regrid (both ways).
+    discretisation_noise : bool
+        Add to the measurement variance the field's variance within one node
+        (``mean((delta_field between neighbouring nodes)^2) / 12`` summed over both grid
+        axes): while the grid is coarse the likelihood is flattened to what the grid can
+        resolve instead of being aliased; it vanishes as the grid refines.
+    ambiguity_radius_cells : float
+        Radius around the fix, map cells, for the integrity flag.
+    ambiguity_mass : float
+        Posterior share beyond that radius above which the fix is flagged ambiguous.
+    """
+
+    name: ClassVar[str] = "pmf"
+
+    points: int = 61
+    extent_sigmas: float = 5.0
+    min_spacing_cells: float = 0.01
+    regrid_ratio: float = 1.4
+    regrid_shift: float = 0.2
+    max_zoom: float = 4.0
+    discretisation_noise: bool = True
+    ambiguity_radius_cells: float = 3.0
+    ambiguity_mass: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.points < 5 or self.points % 2 == 0:
+            raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
+        if self.extent_sigmas <= 0 or self.min_spacing_cells <= 0:
+            raise ConfigError("pmf: extent_sigmas and min_spacing_cells must be positive")
+        if self.regrid_ratio <= 1 or self.max_zoom <= 1:
+            raise ConfigError("pmf: regrid_ratio and max_zoom must exceed 1")
+
+    # ------------------------------------------------------------------ the recursion
+    def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> PmfState:
+        """Gaussian prior ``N(indicated[0], sigma_position[0]^2 I)`` on a square grid.
+
+        Raises
+        ------
+        MatchError
+            No node of the prior grid lies on valid map data.
+        """
+        cell = problem.grid.cell_size
+        floor = self.min_spacing_cells * cell * (self.points - 1) / (2 * self.extent_sigmas)
+        sigma = max(float(problem.sigma_position[0]), floor)
+        centre = np.asarray(problem.indicated[0], dtype=float)
+        spacing = np.full(2, 2.0 * self.extent_sigmas * sigma / (self.points - 1))
+        xy = ops.node_positions(centre, np.eye(2), spacing, self.points)
+        if not problem.grid.contains(xy[..., 0], xy[..., 1]).any():
+            raise MatchError("pmf: the prior grid lies entirely off the map")
+        log_weight = ops.gaussian_log_density(xy, centre, sigma**2 * np.eye(2))
+        return PmfState(ops.normalise(log_weight), centre, np.eye(2), spacing, cell)
+
+    def predict(self, state: PmfState, motion: Motion, rng: np.random.Generator) -> PmfState:
+        """Follow the posterior with the grid, convolve with the motion kernel, shift."""
+        state = self._follow(state, motion.process_var)
+        sd = np.sqrt(motion.process_var)
+        kernels = tuple(ops.motion_kernel(sd / h) for h in state.spacing)
+        log_weight = ops.convolve_log(state.log_weight, kernels)
+        centre = state.centre + np.asarray(motion.displacement, dtype=float)
+        return replace(state, log_weight=log_weight, centre=centre)
+
+    def update(self, state: PmfState, obs: Observation, grid: Grid, rng) -> PmfState:
+        """Add every node's measurement log-likelihood (all beams at once)."""
+        if not np.isfinite(obs.values).any():
+            return state
+        xy = ops.node_positions(*state.frame, state.points)
+        predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
+        var = obs.noise_var
+        if self.discretisation_noise:
+            var += node_field_variance(predicted, obs.values)
+        log_weight = ops.normalise(state.log_weight + log_likelihood(predicted, obs.values, var))
+        return replace(state, log_weight=log_weight, evaluations=state.evaluations + xy.size // 2)
+
+    def estimate(self, state: PmfState) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2."""
+        return ops.moments(state.log_weight, *state.frame)
+
+    def is_ambiguous(self, state: PmfState) -> bool:
+        """More than ``ambiguity_mass`` of the posterior beyond the radius around the mean."""
+        mean, _ = self.estimate(state)
+        radius = self.ambiguity_radius_cells * state.cell
+        return ops.mass_beyond(state.log_weight, *state.frame, mean, radius) > self.ambiguity_mass
+
+    # ------------------------------------------------------------------ the moving grid
+    def _follow(self, state: PmfState, process_var: float) -> PmfState:
+        """Move the log-density onto the ideal grid for the coming prediction if needed."""
+        mean, cov = self.estimate(state)
+        frame = self.ideal_frame(state, mean, cov + process_var * np.eye(2))
+        if not self._off_frame(state, frame):
+            return state
+        log_weight = ops.resample_grid(state.log_weight, state.frame, frame, (mean, cov))
+        centre, axes, spacing = frame
+        return replace(
+            state,
+            log_weight=log_weight,
+            centre=centre,
+            axes=axes,
+            spacing=spacing,
+            regrids=state.regrids + 1,
+        )
+
+    def ideal_frame(self, state: PmfState, mean: np.ndarray, cov: np.ndarray) -> tuple:
+        """``(centre, axes, spacing)`` covering ``+-extent_sigmas`` of ``N(mean, cov)``."""
+        values, axes = np.linalg.eigh(cov)
+        sigma = np.sqrt(np.clip(values, 0.0, None))
+        spacing = 2.0 * self.extent_sigmas * sigma / (state.points - 1)
+        spacing = np.maximum(spacing, self.min_spacing_cells * state.cell)
+        spacing = np.clip(
+            spacing, state.spacing.min() / self.max_zoom, state.spacing.max() * self.max_zoom
+        )
+        return np.asarray(mean, dtype=float), axes, spacing
+
+    def _off_frame(self, state: PmfState, frame: tuple) -> bool:
+        """True when ``state``'s grid is too far from ``frame`` in spacing or position."""
+        centre, axes, spacing = frame
+        basis = state.axes * state.spacing
+        stretch = np.linalg.svd(np.linalg.solve(basis, axes * spacing), compute_uv=False)
+        if np.max(np.abs(np.log(stretch))) > np.log(self.regrid_ratio):
+            return True
+        shift = np.linalg.solve(basis, centre - state.centre)
+        return bool(np.max(np.abs(shift)) > self.regrid_shift * 0.5 * (state.points - 1))
+
+
+def node_field_variance(predicted: np.ndarray, measured: np.ndarray) -> float:
+    """Variance of the field within one grid node, map units squared.
+
+    Parameters
+    ----------
+    predicted : numpy.ndarray
+        ``(N, N, b)`` field each beam reads from each node (NaN off the map).
+    measured : numpy.ndarray
+        ``(b,)`` measurement; only the beams it holds count.
+
+    Returns
+    -------
+    float
+        ``(mean(d0^2) + mean(d1^2)) / 12`` with ``d0``, ``d1`` the field differences between
+        neighbouring nodes along each grid axis (a position uniform over one node's cell);
+        0 when no difference is finite.
+    """
+    use = np.isfinite(measured)
+    p = predicted[..., use]
+    total = 0.0
+    for axis in (0, 1):
+        d = np.diff(p, axis=axis)
+        d = d[np.isfinite(d)]
+        total += float(np.mean(d**2)) if d.size else 0.0
+    return total / 12.0
