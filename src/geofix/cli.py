@@ -1,7 +1,8 @@
 """The ``geofix`` command line: thin -- parse, call the public API, print or write.
 
-Commands: ``demo``, ``run``, ``methods``, ``maps``. ``geofix run`` is a contract relied
-on by outside scripts (flags and JSON keys are kept exactly; they may be extended).
+Commands: ``demo``, ``run``, ``methods``, ``maps``, ``suitability``, ``export``.
+``geofix run`` is a contract relied on by outside scripts (flags and JSON keys are kept
+exactly; they may be extended).
 """
 
 from __future__ import annotations
@@ -138,6 +139,69 @@ def maps() -> None:
     for name, info in bundled_maps().items():
         table.add_row(name, info.description, f"{info.source}; {info.licence}")
     _out.print(table)
+
+
+@app.command()
+def suitability(
+    map_path: Annotated[str, typer.Argument(metavar="MAP", help="Map file or builtin:NAME.")],
+    variable: Annotated[str | None, typer.Option(help="netCDF variable / band.")] = None,
+    kind: Annotated[str | None, typer.Option(help="'depth' or 'gravity'.")] = None,
+    region: Annotated[
+        tuple[float, float, float, float] | None,
+        typer.Option(help="West east south north, in the file's coordinates."),
+    ] = None,
+    resample_m: Annotated[float | None, typer.Option(help="Cell size, metres.")] = None,
+    window_cells: Annotated[
+        int, typer.Option(help="Window side and standard-track length, cells.")
+    ] = 21,
+    noise_std: Annotated[
+        float, typer.Option(help="Measurement noise 1-sigma for the CRLB, map units.")
+    ] = 1.0,
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/suitability"),
+) -> None:
+    """Where can a vehicle fix its position? Window std, roughness and CRLB map and figure."""
+
+    def go():
+        import numpy as np
+
+        from geofix.evaluate.suitability import save_suitability
+        from geofix.evaluate.suitability import suitability as compute
+        from geofix.maps.io import load_grid
+
+        grid = load_grid(
+            map_path, variable=variable, kind=kind, region=region, resample_m=resample_m
+        )
+        result = compute(grid, window_cells=window_cells, noise_std=noise_std)
+        crlb = result.crlb.values[np.isfinite(result.crlb.values)]
+        if crlb.size:
+            q = np.percentile(crlb, [10, 50, 90])
+            _out.print(
+                f"{grid!r}: CRLB of a {window_cells}-sample track (worst heading) "
+                f"p10 {q[0]:.3g} m, median {q[1]:.3g} m, p90 {q[2]:.3g} m"
+            )
+        for label, path in save_suitability(result, out).items():
+            _out.print(f"{label}: {path}")
+
+    _guarded(go)
+
+
+@app.command()
+def export(
+    scenario: Annotated[Path, typer.Argument(help="Scenario YAML file.")],
+    out: Annotated[Path, typer.Option(help="Output netCDF file.")],
+    trials: Annotated[int | None, typer.Option(help="Override the scenario's trials.")] = None,
+    seed: Annotated[int | None, typer.Option(help="Override the scenario's seed.")] = None,
+) -> None:
+    """Write a scenario's exact trials (map, truth, INS, measurements) to netCDF."""
+
+    def go():
+        from geofix.sim.export import export_trials
+        from geofix.sim.scenario import load_scenario
+
+        path = export_trials(load_scenario(scenario), out, trials=trials, seed=seed)
+        _out.print(f"trials: {path}")
+
+    _guarded(go)
 
 
 def builtin_scenario(name: str) -> Path:

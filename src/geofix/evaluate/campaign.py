@@ -7,6 +7,13 @@ Workers return results; the calling process writes them to the store as they com
 an interrupted campaign resumes where it stopped. The generator of method ``m`` on trial
 ``i`` depends only on ``(seed, i, m)``: the same command gives the same table whatever the
 number of jobs or the scheduler (wall times aside).
+
+Beside each trial's results the worker computes the trial's Cramér–Rao bounds
+(:func:`geofix.evaluate.crlb.trial_crlb`) and keeps its true end point; both go to a side
+table ``trial_bounds`` of the same SQLite file (older stores gain it on first use, and
+trials resumed without it are filled in by the calling process). They give the summary's
+``crlb_m`` / ``crlb_batch_m`` and the Mahalanobis distance of each end error used by the
+false-fix rule.
 """
 
 from __future__ import annotations
@@ -16,19 +23,22 @@ import importlib
 import json
 import multiprocessing
 import os
+import sqlite3
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from geofix.errors import ConfigError
-from geofix.evaluate.metrics import summarize
+from geofix.errors import ConfigError, GeofixError
+from geofix.evaluate.crlb import rms_bound, scenario_beam_variance, trial_crlb
+from geofix.evaluate.metrics import end_mahalanobis, summarize
 from geofix.evaluate.runner import TrialResult, method_rng, run_trial
 from geofix.evaluate.store import ResultStore, scenario_hash
 from geofix.maps.grid import Grid
@@ -37,9 +47,34 @@ from geofix.sim.scenario import Scenario
 
 SUMMARY_NAME = "summary.json"
 
-# (spec, method) pairs of one task, and what a task returns: (spec, trial, result).
+# (spec, method) pairs of one task, and what a task returns: its (spec, trial, result)
+# triples and the trial's bounds.
 _Task = tuple[int, list[tuple[str, object]]]
-_Done = list[tuple[str, int, TrialResult]]
+
+
+@dataclass(frozen=True)
+class TrialInfo:
+    """Per-trial facts stored beside the results.
+
+    Parameters
+    ----------
+    index : int
+        Trial number.
+    crlb_var_m2 : float
+        ``trace(J_n^-1)`` of the recursive CRLB at the last sample, m^2.
+    crlb_batch_var_m2 : float
+        ``trace(J^-1)`` of the batch CRLB of the last leg, m^2 (``inf`` if singular).
+    truth_end : tuple of float
+        True position at the last sample, metres.
+    """
+
+    index: int
+    crlb_var_m2: float
+    crlb_batch_var_m2: float
+    truth_end: tuple[float, float]
+
+
+_Done = tuple[list[tuple[str, int, TrialResult]], TrialInfo]
 
 
 @dataclass
@@ -54,10 +89,16 @@ class CampaignResult:
         Number of trials (indices ``0 .. trials-1``).
     frame : pandas.DataFrame
         One row per (method, trial), methods in the order given, trials ascending (see
-        :meth:`geofix.evaluate.store.ResultStore.to_frame` for the columns).
+        :meth:`geofix.evaluate.store.ResultStore.to_frame` for the columns), plus
+        ``end_mahalanobis`` (end error against the method's last covariance, NaN
+        without one) and ``crlb_m`` (the trial's recursive bound, metres).
     summary : dict
-        ``{"scenario", "trials", "methods": {spec: stats}}`` (see
+        ``{"scenario", "trials", "crlb_m", "crlb_batch_m", "methods": {spec: stats}}`` (see
         :func:`geofix.evaluate.metrics.summarize`), as written to ``summary.json``.
+        ``crlb_m`` is the recursive CRLB on the end-point RMS error over the trials,
+        ``sqrt(mean_i trace(J_n^-1))`` metres (variances averaged, then the root);
+        ``crlb_batch_m`` the same for a rigid batch fix of the last leg (None if singular
+        on some trial).
     paths : dict
         ``{"store": results.sqlite, "summary": summary.json}``.
     computed : int
@@ -134,14 +175,22 @@ def run_campaign(
         backend = _backend(jobs, scheduler, len(tasks))
         results = backend(simulate.simulate_trial, scenario, grid, tasks)
         computed = 0
-        with closing(results), _Bar(progress, scenario.name, sum(len(t[1]) for t in tasks)) as bar:
-            for done in results:
+        bounds = _open_bounds(store.path)
+        with (
+            closing(bounds),
+            closing(results),
+            _Bar(progress, scenario.name, sum(len(t[1]) for t in tasks)) as bar,
+        ):
+            for done, info in results:
                 for spec, index, result in done:
                     store.record(scenario.name, shash, spec, index, result)
+                _record_info(bounds, shash, info)
                 bar.advance(len(done))
                 computed += len(done)
-        frame = _campaign_frame(store.to_frame(shash), list(parsed), scenario.trials)
-    result = _finish(scenario, grid, frame, out, store.path, computed)
+            infos = _all_infos(bounds, shash, scenario, grid, simulate.simulate_trial)
+        frame = _campaign_frame(store.to_frame(shash, arrays=True), list(parsed), scenario.trials)
+    frame = _with_integrity(frame, infos)
+    result = _finish(scenario, grid, frame, out, store.path, computed, infos)
     return dataclasses.replace(result, scenario_hash=shash)
 
 
@@ -181,10 +230,13 @@ def _campaign_frame(frame: pd.DataFrame, specs: list[str], trials: int) -> pd.Da
     return frame.reset_index(drop=True)
 
 
-def _finish(scenario, grid, frame, out: Path, store_path: Path, computed: int):
+def _finish(scenario, grid, frame, out: Path, store_path: Path, computed: int, infos: dict):
+    chosen = [infos[i] for i in range(scenario.trials)]
     summary = {
         "scenario": scenario.name,
         "trials": scenario.trials,
+        "crlb_m": rms_bound([i.crlb_var_m2 for i in chosen]),
+        "crlb_batch_m": rms_bound([i.crlb_batch_var_m2 for i in chosen]),
         "methods": summarize(frame, grid.cell_size),
     }
     summary_path = out / SUMMARY_NAME
@@ -216,15 +268,86 @@ def run_task(simulate_trial: Callable, scenario: Scenario, grid: Grid, task: _Ta
 
     Returns
     -------
-    list of tuple
-        ``(spec, index, TrialResult)`` per method.
+    tuple
+        ``([(spec, index, TrialResult) per method], TrialInfo)``.
     """
     index, methods = task
     trial = simulate_trial(scenario, grid, index)
-    return [
+    done = [
         (spec, index, run_trial(method, trial, grid, method_rng(scenario.seed, index, spec)))
         for spec, method in methods
     ]
+    return done, trial_info(scenario, grid, trial)
+
+
+def trial_info(scenario: Scenario, grid: Grid, trial) -> TrialInfo:
+    """The CRLBs (per-beam sensor plus map-error variance) and true end point of a trial."""
+    bound = trial_crlb(trial, grid, scenario_beam_variance(scenario, trial.offsets))
+    end = np.asarray(trial.truth[-1], dtype=float)
+    return TrialInfo(
+        trial.index, bound.recursive_var_m2, bound.batch_var_m2, (float(end[0]), float(end[1]))
+    )
+
+
+# --------------------------------------------------------------------------- trial bounds
+_BOUNDS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS trial_bounds (
+    scenario_hash TEXT NOT NULL,
+    trial INTEGER NOT NULL,
+    crlb_var_m2 REAL,
+    crlb_batch_var_m2 REAL,
+    truth_end_x REAL NOT NULL,
+    truth_end_y REAL NOT NULL,
+    PRIMARY KEY (scenario_hash, trial)
+)
+"""
+
+
+def _open_bounds(store_path: Path) -> sqlite3.Connection:
+    """A connection to the store's ``trial_bounds`` side table (created if missing)."""
+    try:
+        db = sqlite3.connect(store_path)
+        db.execute(_BOUNDS_SCHEMA)
+        db.commit()
+    except sqlite3.Error as exc:
+        raise GeofixError(f"cannot open results store {store_path}: {exc}") from None
+    return db
+
+
+def _record_info(db: sqlite3.Connection, shash: str, info: TrialInfo) -> None:
+    row = (shash, info.index, info.crlb_var_m2, info.crlb_batch_var_m2, *info.truth_end)
+    with db:
+        db.execute("INSERT OR REPLACE INTO trial_bounds VALUES (?, ?, ?, ?, ?, ?)", row)
+
+
+def _all_infos(db: sqlite3.Connection, shash: str, scenario, grid, simulate_trial) -> dict:
+    """Stored trial infos of a scenario, computing (and storing) those that are missing."""
+    cur = db.execute("SELECT * FROM trial_bounds WHERE scenario_hash = ?", (shash,))
+    infos = {
+        int(t): TrialInfo(int(t), _real(v), _real(b), (float(x), float(y)))
+        for _, t, v, b, x, y in cur
+    }
+    for index in range(scenario.trials):
+        if index not in infos or np.isnan(infos[index].crlb_var_m2):
+            infos[index] = trial_info(scenario, grid, simulate_trial(scenario, grid, index))
+            _record_info(db, shash, infos[index])
+    return infos
+
+
+def _real(value) -> float:
+    return float("nan") if value is None else float(value)
+
+
+def _with_integrity(frame: pd.DataFrame, infos: dict) -> pd.DataFrame:
+    """Add ``end_mahalanobis`` and ``crlb_m``; drop the per-sample array columns."""
+    frame = frame.copy()
+    ends = [np.asarray(infos[int(t)].truth_end) for t in frame["trial"]]
+    frame["end_mahalanobis"] = [
+        end_mahalanobis(est[-1] - end, cov)
+        for est, end, cov in zip(frame["estimate"], ends, frame["covariance"], strict=True)
+    ]
+    frame["crlb_m"] = [float(np.sqrt(infos[int(t)].crlb_var_m2)) for t in frame["trial"]]
+    return frame.drop(columns=["estimate", "error", "covariance"])
 
 
 def _check_jobs(jobs: int | None) -> int:

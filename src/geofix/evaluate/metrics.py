@@ -3,7 +3,9 @@
 The table has one row per (method, trial) with the columns written by
 :class:`geofix.evaluate.store.ResultStore`: ``method``, ``trial``, ``end_error_m``,
 ``mean_track_error_m``, ``max_track_error_m``, ``leg_errors_m`` (a list per row),
-``time_s``, ``n_calls``, ``evaluations``, ``ambiguous`` and ``failed``.
+``time_s``, ``n_calls``, ``evaluations``, ``ambiguous`` and ``failed``, and optionally
+``end_mahalanobis`` (the end error measured against the method's own last covariance, NaN
+where it gives none) for the false-fix rule.
 """
 
 from __future__ import annotations
@@ -17,8 +19,10 @@ import pandas as pd
 SUCCESS_METRES = {"20": 20.0, "40": 40.0, "60": 60.0, "80": 80.0, "100": 100.0}
 #: Success thresholds in map cells (key -> cells).
 SUCCESS_CELLS = {"0.5c": 0.5, "1c": 1.0, "2c": 2.0, "3c": 3.0}
-#: An unflagged fix farther than this many cells from the truth is a false fix.
+#: An unflagged fix farther than this many cells from the truth is a false fix...
 FALSE_FIX_CELLS = 3.0
+#: ... unless its end error lies inside this many sigmas of the method's own covariance.
+FALSE_FIX_SIGMAS = 3.0
 
 
 def summarize(results_df: pd.DataFrame, cell_m: float) -> dict:
@@ -46,8 +50,9 @@ def summarize(results_df: pd.DataFrame, cell_m: float) -> dict:
         metres), ``max_track_error_m`` (metres), ``success_rate`` (share of trials with an
         end-point error <= threshold, keys ``"20"`` ... ``"100"`` metres and ``"0.5c"`` ...
         ``"3c"`` cells), ``mean_time_s`` (seconds per ``match`` call), ``failures``,
-        ``false_fix_rate`` (share of trials ending more than 3 cells off without being
-        flagged ambiguous), ``ambiguous_rate``, ``mean_evaluations`` (per trial) and
+        ``false_fix_rate`` (share of trials ending more than 3 cells off, not flagged
+        ambiguous, and outside the method's 3-sigma ellipse or without a covariance; see
+        :func:`false_fix_rate`), ``ambiguous_rate``, ``mean_evaluations`` (per trial) and
         ``leg_mean_errors_m`` (mean end error of every leg, metres).
     """
     methods = list(dict.fromkeys(results_df["method"]))
@@ -106,12 +111,54 @@ def success_rates(end_errors: np.ndarray, trials: int, cell_m: float) -> dict:
 
 
 def false_fix_rate(ok: pd.DataFrame, trials: int, cell_m: float) -> float:
-    """Share of ``trials`` ending farther than 3 cells (``cell_m`` metres) and not flagged."""
+    """Share of ``trials`` that are confident wrong fixes.
+
+    A false fix ends farther than 3 cells (``cell_m`` metres each) from the truth, was not
+    flagged ambiguous, and either gives no covariance or lies outside its 3-sigma ellipse
+    (Mahalanobis distance > 3, column ``end_mahalanobis``; NaN = no covariance; without
+    the column every row counts as giving none). ``ok`` holds the rows of the trials that
+    did not fail; ``trials`` counts all of them.
+    """
     if not trials:
         return math.nan
     far = ok["end_error_m"].to_numpy(dtype=float) > FALSE_FIX_CELLS * cell_m
     unflagged = ~ok["ambiguous"].to_numpy(dtype=bool)
-    return float(np.count_nonzero(far & unflagged) / trials)
+    if "end_mahalanobis" in ok:
+        distance = ok["end_mahalanobis"].to_numpy(dtype=float)
+        outside = ~(distance <= FALSE_FIX_SIGMAS)
+    else:
+        outside = np.ones(len(ok), dtype=bool)
+    return float(np.count_nonzero(far & unflagged & outside) / trials)
+
+
+def end_mahalanobis(error_xy, covariance) -> float:
+    """Mahalanobis distance ``sqrt(e^T C^-1 e)`` of an end error against a covariance.
+
+    Parameters
+    ----------
+    error_xy : array_like
+        ``(2,)`` estimate minus truth, metres.
+    covariance : array_like or None
+        ``(2, 2)`` covariance of the estimate, m^2.
+
+    Returns
+    -------
+    float
+        Dimensionless distance; NaN without a usable (finite, positive-definite)
+        covariance or with a non-finite error.
+    """
+    if covariance is None:
+        return math.nan
+    cov = np.asarray(covariance, dtype=float).reshape(-1)
+    e = np.asarray(error_xy, dtype=float).reshape(-1)
+    if cov.size != 4 or e.size != 2 or not (np.isfinite(cov).all() and np.isfinite(e).all()):
+        return math.nan
+    c = cov.reshape(2, 2)
+    det = c[0, 0] * c[1, 1] - c[0, 1] * c[1, 0]
+    if not (c[0, 0] > 0 and det > 0):
+        return math.nan
+    quad = (c[1, 1] * e[0] ** 2 - (c[0, 1] + c[1, 0]) * e[0] * e[1] + c[0, 0] * e[1] ** 2) / det
+    return float(np.sqrt(max(quad, 0.0)))
 
 
 def leg_mean_errors(leg_errors: pd.Series) -> list:

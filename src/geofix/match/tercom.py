@@ -16,7 +16,11 @@ Laplace for ``mad``, with the sensor noise as scale) whose mass-weighted spread 
 fix covariance; the fix is *ambiguous* when more than ``ambiguity_mass`` of that mass lies
 farther than ``exclusion_cells`` from the best candidate (a second minimum nearly as good
 as the first, far from it). For ``cor``/``ncor``, whose values are no distances, the
-integrity check scores the same window once more with ``msd``.
+integrity check scores the same window once more with ``msd``. The fix is also flagged
+when the terrain along it is too flat to tell: the standard deviation of the map over the
+matched footprints is below ``min_terrain_snr`` times the sensor noise (a surface whose
+relief drowns in the noise, such as a flat sediment plain, makes the pseudo-likelihood
+overconfident: the small INS drift inside the window then picks the minimum).
 """
 
 from __future__ import annotations
@@ -58,6 +62,10 @@ class Tercom:
         makes the fix ambiguous.
     ambiguity_mass : float
         Pseudo-likelihood mass outside the exclusion radius above which the fix is flagged.
+    min_terrain_snr : float
+        The fix is flagged when the map's standard deviation over the matched footprints
+        is below this many sensor-noise sigmas (:func:`terrain_snr`); 1 = relief no larger
+        than the noise.
     """
 
     name: ClassVar[str] = "tercom"
@@ -70,6 +78,7 @@ class Tercom:
     min_valid_fraction: float = 0.9
     exclusion_cells: float = 3.0
     ambiguity_mass: float = 0.05
+    min_terrain_snr: float = 1.0
 
     def __post_init__(self) -> None:
         if self.metric not in _METRICS:
@@ -91,13 +100,15 @@ class Tercom:
         if self.metric in ("cor", "ncor"):
             surface = tercom_cost_surface(problem, ox, oy, "msd", self.min_valid_fraction)
         covariance, ambiguous = self._integrity(problem, surface, ox, oy, (j, k))
+        track = problem.indicated + offset
+        snr = terrain_snr(problem, track)
         return Fix(
-            track=problem.indicated + offset,
+            track=track,
             covariance=covariance,
             cost=float(cost[j, k]),
             evaluations=int(cost.size * np.isfinite(problem.measured).sum()),
-            ambiguous=ambiguous,
-            diagnostics={"offset": offset, "candidates": int(cost.size)},
+            ambiguous=ambiguous or bool(snr < self.min_terrain_snr),
+            diagnostics={"offset": offset, "candidates": int(cost.size), "terrain_snr": snr},
         )
 
     def candidate_offsets(self, problem: MatchProblem) -> tuple[np.ndarray, np.ndarray]:
@@ -126,6 +137,33 @@ class Tercom:
         cxy = (weights * (dx - mx) * (dy - my)).sum()
         covariance = np.array([[cxx, cxy], [cxy, cyy]])
         return covariance, bool(weights[far].sum() > self.ambiguity_mass)
+
+
+def terrain_snr(problem: MatchProblem, track: np.ndarray) -> float:
+    """Terrain-to-noise ratio along a track: map std over its footprints / sensor noise.
+
+    Parameters
+    ----------
+    problem : MatchProblem
+        Map, headings, beam offsets, measurements (footprints of missing measurements
+        are left out) and ``noise_std`` (map units).
+    track : numpy.ndarray
+        ``(n, 2)`` vehicle positions, metres.
+
+    Returns
+    -------
+    float
+        ``std(map at the footprints) / noise_std`` (dimensionless); ``inf`` without noise,
+        0 when no footprint is on valid data.
+    """
+    fx, fy = problem.footprint(track)
+    values = problem.grid.sample(fx, fy)[np.isfinite(problem.measured)]
+    values = values[np.isfinite(values)]
+    if values.size < 2:
+        return 0.0
+    if problem.noise_std <= 0:
+        return float("inf")
+    return float(np.std(values) / problem.noise_std)
 
 
 def tercom_cost_surface(

@@ -1,0 +1,288 @@
+"""Terrain suitability: where on a map can a vehicle fix its position, and how well?
+
+Three layers, each on the map's own cells, for a mission planner to route the vehicle:
+
+- ``std`` -- the field's standard deviation in a moving ``N x N`` window
+  (:func:`geofix.maps.terrain.local_std`): the relief a matcher has to work with;
+- ``roughness`` -- the mean absolute difference between adjacent cells in the window:
+  the fine texture that pins a fix down;
+- ``crlb`` -- the Cramér–Rao bound (RMS, metres) of a rigid fix from a standard straight
+  track of ``N`` single-beam soundings one cell apart centred on the cell, for a
+  measurement noise ``noise_std`` (see :mod:`geofix.evaluate.crlb`). The information of
+  the track is a sum of ``g g^T`` along it, so every cell's bound comes from shifted sums
+  of the three gradient products (one pass per heading and sample, vectorised over the
+  whole map); the layer holds the worst of the headings (the planner does not know the
+  track's heading yet), and ``crlb_mean`` the RMS over them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from geofix.errors import ConfigError
+from geofix.evaluate.crlb import gradient_grids, inverse_trace
+from geofix.maps.grid import Grid
+from geofix.maps.terrain import local_std
+
+#: Track headings of the standard track, degrees clockwise from north.
+DEFAULT_HEADINGS_DEG = (0.0, 45.0, 90.0, 135.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Suitability:
+    """Suitability layers of a map (each a :class:`Grid` on the map's cells).
+
+    Attributes
+    ----------
+    std : Grid
+        Moving-window standard deviation, field units.
+    roughness : Grid
+        Moving-window mean absolute difference of adjacent cells, field units.
+    crlb : Grid
+        CRLB of the standard track, worst heading, metres (``inf`` where it says nothing
+        along some direction, NaN on no-data).
+    crlb_mean : Grid
+        ``sqrt`` of the mean over headings of ``trace(J^-1)``, metres.
+    window_cells : int
+        Window side and track length, cells.
+    noise_std : float
+        Measurement noise assumed by the bound, field units.
+    """
+
+    std: Grid
+    roughness: Grid
+    crlb: Grid
+    crlb_mean: Grid
+    window_cells: int
+    noise_std: float
+
+
+def local_roughness(grid: Grid, window_cells: int) -> np.ndarray:
+    """Mean absolute difference between adjacent cells in a moving window.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map (NaN = no data; pairs touching no-data are left out).
+    window_cells : int
+        Side of the square window, cells.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(ny, nx)`` field units; NaN on no-data cells or without a valid pair.
+    """
+    from scipy.ndimage import uniform_filter
+
+    z = np.asarray(grid.values, float)
+    dx = np.abs(np.diff(z, axis=1))
+    dy = np.abs(np.diff(z, axis=0))
+    total = np.zeros(z.shape)
+    count = np.zeros(z.shape)
+    for diff, pad in ((dx, ((0, 0), (0, 1))), (dy, ((0, 1), (0, 0)))):
+        ok = np.pad(np.isfinite(diff), pad)
+        total += np.pad(np.nan_to_num(diff), pad)
+        count += ok
+    size = int(window_cells)
+    s = uniform_filter(total, size, mode="constant")
+    n = uniform_filter(count, size, mode="constant")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = s / n
+    return np.where(np.isfinite(z) & (n > 1e-9), out, np.nan)
+
+
+def _shifted_sum(field: np.ndarray, shifts: np.ndarray) -> np.ndarray:
+    """``sum_s field[r + s_row, c + s_col]`` over integer ``shifts`` ``(k, 2)``; 0 off-map."""
+    ny, nx = field.shape
+    pad = int(np.abs(shifts).max()) if shifts.size else 0
+    padded = np.pad(field, pad)
+    out = np.zeros(field.shape)
+    for dr, dc in shifts:
+        out += padded[pad + dr : pad + dr + ny, pad + dc : pad + dc + nx]
+    return out
+
+
+def track_shifts(samples: int, heading_deg: float, grid: Grid) -> np.ndarray:
+    """Cell offsets ``(row, col)`` of a straight track of ``samples`` centred on a cell.
+
+    Samples are one cell size apart (the mean of ``dx`` and ``dy``) along the heading and
+    rounded to the nearest cell.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(samples, 2)`` integer offsets.
+    """
+    psi = np.radians(heading_deg)
+    along = (np.arange(samples) - (samples - 1) / 2.0) * grid.cell_size
+    cols = np.rint(along * np.sin(psi) / grid.dx).astype(int)
+    rows = np.rint(along * np.cos(psi) / grid.dy).astype(int)
+    return np.column_stack([rows, cols])
+
+
+def track_crlb_traces(
+    grid: Grid, samples: int, noise_std: float, headings_deg=DEFAULT_HEADINGS_DEG
+) -> np.ndarray:
+    """``trace(J^-1)`` of the standard track through every cell, for each heading.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    samples : int
+        Soundings per track, one cell apart.
+    noise_std : float
+        Measurement noise 1-sigma, field units (positive).
+    headings_deg : sequence of float
+        Track headings, degrees clockwise from north.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(len(headings), ny, nx)`` variances summed over both axes, m^2 (``inf`` where
+        the information is singular); gradients that cannot be formed count as none.
+    """
+    gxg, gyg = gradient_grids(grid)
+    gx = np.nan_to_num(np.asarray(gxg.values, float))
+    gy = np.nan_to_num(np.asarray(gyg.values, float))
+    products = np.stack([gx * gx, gx * gy, gy * gy]) / float(noise_std) ** 2
+    out = np.empty((len(headings_deg), *grid.shape))
+    for h, heading in enumerate(headings_deg):
+        shifts = track_shifts(samples, heading, grid)
+        sxx, sxy, syy = (_shifted_sum(p, shifts) for p in products)
+        info = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
+        out[h] = inverse_trace(info)
+    return out
+
+
+def suitability(
+    grid: Grid,
+    window_cells: int = 21,
+    noise_std: float = 1.0,
+    headings_deg=DEFAULT_HEADINGS_DEG,
+) -> Suitability:
+    """Suitability layers of a map: relief, texture and the CRLB of a standard track.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    window_cells : int
+        Side of the moving window and number of soundings of the standard track, cells
+        (at least 3).
+    noise_std : float
+        Measurement noise (sensor plus map error) 1-sigma, field units (positive).
+    headings_deg : sequence of float
+        Headings of the standard track, degrees clockwise from north.
+
+    Returns
+    -------
+    Suitability
+        The layers (see the module docstring); NaN on the map's no-data cells.
+
+    Raises
+    ------
+    ConfigError
+        ``window_cells`` below 3 or ``noise_std`` not positive.
+    """
+    if int(window_cells) < 3:
+        raise ConfigError(f"suitability: window_cells must be at least 3, got {window_cells}")
+    if not noise_std > 0:
+        raise ConfigError(f"suitability: noise_std must be positive, got {noise_std}")
+    valid = np.isfinite(grid.values)
+    traces = track_crlb_traces(grid, int(window_cells), noise_std, headings_deg)
+    with np.errstate(invalid="ignore"):
+        worst = np.where(valid, np.sqrt(traces.max(axis=0)), np.nan)
+        mean = np.where(valid, np.sqrt(traces.mean(axis=0)), np.nan)
+    meta = {"window_cells": int(window_cells), "noise_std": float(noise_std)}
+
+    def layer(values, what: str, units: str) -> Grid:
+        return grid.with_values(
+            values, name=f"{grid.name}_{what}", units=units, meta={**meta, "layer": what}
+        )
+
+    return Suitability(
+        std=layer(local_std(grid, int(window_cells)), "std", grid.units),
+        roughness=layer(local_roughness(grid, int(window_cells)), "roughness", grid.units),
+        crlb=layer(worst, "crlb", "m"),
+        crlb_mean=layer(mean, "crlb_mean", "m"),
+        window_cells=int(window_cells),
+        noise_std=float(noise_std),
+    )
+
+
+def save_suitability(result: Suitability, out_dir: str | Path) -> dict[str, Path]:
+    """Write the layers as grids (netCDF, :func:`geofix.maps.io.save_grid`) and a figure.
+
+    Parameters
+    ----------
+    result : Suitability
+        The layers.
+    out_dir : str or pathlib.Path
+        Output folder (created if missing).
+
+    Returns
+    -------
+    dict
+        ``{"std", "roughness", "crlb", "crlb_mean": netCDF path, "figure": PNG path}``.
+    """
+    from geofix.maps.io import save_grid
+    from geofix.plot.figures import save_figure
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for what in ("std", "roughness", "crlb", "crlb_mean"):
+        paths[what] = save_grid(getattr(result, what), out / f"suitability_{what}.nc")
+    paths["figure"] = save_figure(suitability_figure(result), out / "suitability.png")
+    return paths
+
+
+def suitability_figure(result: Suitability, crlb_range_m: tuple[float, float] | None = None):
+    """A three-panel figure: window std, roughness and the CRLB (log scale, metres).
+
+    Parameters
+    ----------
+    result : Suitability
+        The layers.
+    crlb_range_m : (float, float), optional
+        Colour range of the CRLB panel, metres (default: its 2nd..98th percentiles).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure (axes in kilometres).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    grid = result.crlb
+    west, east, south, north = grid.extent
+    extent = np.array([west, east, south, north]) / 1e3
+    crlb = np.where(np.isfinite(grid.values), grid.values, np.nan)
+    lo, hi = crlb_range_m or np.nanpercentile(crlb, [2, 98])
+    lo = max(float(lo), 1e-3)
+    hi = max(float(hi), 2 * lo)
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
+    panels = (
+        (result.std.values, None, "viridis", f"std in {result.window_cells}-cell window"),
+        (result.roughness.values, None, "magma", "roughness (adjacent-cell |diff|)"),
+        (np.clip(crlb, lo, hi), LogNorm(lo, hi), "RdYlGn_r", "CRLB of a standard track (m)"),
+    )
+    for ax, (values, norm, cmap, title) in zip(axes, panels, strict=True):
+        im = ax.imshow(values, origin="lower", extent=extent, cmap=cmap, norm=norm)
+        fig.colorbar(im, ax=ax, shrink=0.85)
+        ax.set_title(title)
+        ax.set_xlabel("x (km)")
+    axes[0].set_ylabel("y (km)")
+    fig.suptitle(
+        f"{grid.name.removesuffix('_crlb')}: suitability for matching "
+        f"(noise {result.noise_std:g} {result.std.units})"
+    )
+    return fig

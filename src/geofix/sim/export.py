@@ -1,0 +1,280 @@
+"""Export simulated trials to a self-describing netCDF file, and read them back.
+
+The file holds everything a method sees and everything it is judged against, so that
+other tools can be run on the very same data:
+
+- the map: ``z (y, x)`` on metric cell-centre coordinates, with the :class:`Grid`
+  geometry in the attributes ``grid_x0, grid_y0, grid_dx, grid_dy, grid_kind, grid_units,
+  grid_name, grid_meta_json``;
+- per trial and sample: ``truth_x, truth_y, true_heading, indicated_x, indicated_y,
+  indicated_heading, times, sigma_position`` ``(trial, sample)`` and ``measured``
+  ``(trial, sample, beam)``;
+- the sensor geometry ``offset_across, offset_along (beam)``, the legs ``leg_start
+  (leg)`` and per trial ``noise_std, map_error_std, trial_index``;
+- every array of ``Trial.extras`` (``dvl_velocity``, ``true_velocity``,
+  ``unlagged_measured``, ...) as ``extra_<key>[_x|_y]`` and scalar extras per trial, each
+  tagged with attributes ``extra_key`` / ``extra_component`` so the reader restores them;
+- global attributes: the scenario as YAML (``scenario_yaml``), its name, seed, sensor
+  type and conventions. Units are on every variable (metres, radians clockwise from
+  north, seconds, map units).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from geofix.errors import ConfigError, GeofixError
+from geofix.maps.grid import Grid
+from geofix.sim.trial import Trial
+
+_RAD = "radians clockwise from north"
+_TRACKS = {
+    "truth": ("truth", "true position", "m"),
+    "indicated": ("indicated", "INS-indicated position", "m"),
+}
+_SAMPLE_VARS = {
+    "true_heading": ("true heading", _RAD),
+    "indicated_heading": ("INS-indicated heading", _RAD),
+    "times": ("sample time from the start", "s"),
+    "sigma_position": ("prior per-axis 1-sigma of the INS position error", "m"),
+}
+
+
+def export_trials(scenario, path: str | Path, trials: int | None = None, seed=None) -> Path:
+    """Simulate trials ``0 .. trials-1`` of a scenario and write them to netCDF.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The mission family.
+    path : str or pathlib.Path
+        Output file (netCDF-4).
+    trials, seed : int, optional
+        Override the scenario's number of trials and seed.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+
+    Raises
+    ------
+    GeofixError
+        ``trials`` below 1 (ConfigError), a track off the map (TrackOffMapError), a bad
+        map (MapError), or the file cannot be written.
+    """
+    from geofix.sim.simulate import prepare_map, simulate_trial
+
+    if trials is not None and int(trials) < 1:
+        raise ConfigError(f"trials must be at least 1, got {trials}")
+    update = {k: int(v) for k, v in (("trials", trials), ("seed", seed)) if v is not None}
+    scenario = scenario.model_copy(update=update) if update else scenario
+    grid = prepare_map(scenario)
+    runs = [simulate_trial(scenario, grid, i) for i in range(scenario.trials)]
+    dataset = trials_dataset(grid, runs, _scenario_attrs(scenario))
+    path = Path(path)
+    try:
+        dataset.to_netcdf(path)
+    except (OSError, ValueError) as exc:
+        raise GeofixError(f"cannot write trials to {path}: {exc}") from None
+    return path
+
+
+def _scenario_attrs(scenario) -> dict:
+    import yaml
+
+    data = scenario.model_dump(mode="json", exclude={"base_dir"})
+    return {
+        "scenario_yaml": yaml.safe_dump(data, sort_keys=False),
+        "scenario_name": scenario.name,
+        "scenario_seed": int(scenario.seed),
+    }
+
+
+def trials_dataset(grid: Grid, trials: list[Trial], attrs: dict | None = None):
+    """The :mod:`xarray` dataset of a map and trials of equal length and beams.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map the trials were drawn on.
+    trials : list of Trial
+        At least one trial; all with the same samples, beams, offsets and legs.
+    attrs : dict, optional
+        Extra global attributes (e.g. the scenario YAML).
+
+    Returns
+    -------
+    xarray.Dataset
+        See the module docstring for the variables.
+    """
+    import xarray as xr
+
+    _check_alike(trials)
+    first = trials[0]
+    data = {"z": (("y", "x"), np.asarray(grid.values), {"units": grid.units, "long_name": "map"})}
+    data.update(_trial_vars(trials))
+    data.update(_extra_vars(trials))
+    data["offset_across"] = ("beam", first.offsets[:, 0], _attrs("beam offset, starboard", "m"))
+    data["offset_along"] = ("beam", first.offsets[:, 1], _attrs("beam offset, forward", "m"))
+    data["leg_start"] = ("leg", np.asarray(first.leg_starts), _attrs("first sample of leg", "1"))
+    coords = {"x": ("x", grid.x, {"units": "m"}), "y": ("y", grid.y, {"units": "m"})}
+    return xr.Dataset(data, coords=coords, attrs={**_global_attrs(grid, first), **(attrs or {})})
+
+
+def _attrs(long_name: str, units: str) -> dict:
+    return {"long_name": long_name, "units": units}
+
+
+def _trial_vars(trials: list[Trial]) -> dict:
+    out = {}
+    for name, (attr, what, units) in _TRACKS.items():
+        stacked = np.stack([getattr(t, attr) for t in trials])
+        out[f"{name}_x"] = (("trial", "sample"), stacked[..., 0], _attrs(f"{what}, east", units))
+        out[f"{name}_y"] = (("trial", "sample"), stacked[..., 1], _attrs(f"{what}, north", units))
+    for name, (what, units) in _SAMPLE_VARS.items():
+        stacked = np.stack([getattr(t, name) for t in trials])
+        out[name] = (("trial", "sample"), stacked, _attrs(what, units))
+    measured = np.stack([t.measured for t in trials])
+    out["measured"] = (("trial", "sample", "beam"), measured, _attrs("sensor reading", "map"))
+    for name, what in (("noise_std", "sensor noise 1-sigma"), ("map_error_std", "map error")):
+        out[name] = ("trial", [float(getattr(t, name)) for t in trials], _attrs(what, "map"))
+    out["trial_index"] = ("trial", [int(t.index) for t in trials], _attrs("trial number", "1"))
+    return out
+
+
+def _extra_vars(trials: list[Trial]) -> dict:
+    out = {}
+    first = trials[0]
+    for key, value in first.extras.items():
+        stacked = np.stack([np.asarray(t.extras[key], dtype=float) for t in trials])
+        tag = {"extra_key": key}
+        if stacked.ndim == 1:
+            out[f"extra_{key}"] = ("trial", stacked, {**tag, "extra_component": "scalar"})
+        elif stacked.ndim == 2:
+            out[f"extra_{key}"] = (("trial", "sample"), stacked, {**tag, "extra_component": "n"})
+        elif stacked.shape[-1] == 2 and np.asarray(value).shape[-1] != first.offsets.shape[0]:
+            for c, axis in enumerate(("x", "y")):
+                attrs = {**tag, "extra_component": axis}
+                out[f"extra_{key}_{axis}"] = (("trial", "sample"), stacked[..., c], attrs)
+        else:
+            dims = ("trial", "sample", "beam")
+            out[f"extra_{key}"] = (dims, stacked, {**tag, "extra_component": "beams"})
+    return out
+
+
+def _global_attrs(grid: Grid, first: Trial) -> dict:
+    return {
+        "geofix_trials": 1,
+        "Conventions": "x east, y north (metres, local frame); headings radians clockwise "
+        "from north; row 0 of z at the south; measured in map units (same sign as z)",
+        "sensor": first.sensor,
+        "grid_x0": float(grid.x0),
+        "grid_y0": float(grid.y0),
+        "grid_dx": float(grid.dx),
+        "grid_dy": float(grid.dy),
+        "grid_kind": grid.kind,
+        "grid_units": grid.units,
+        "grid_name": grid.name,
+        "grid_meta_json": json.dumps(grid.meta, default=str),
+    }
+
+
+def _check_alike(trials: list[Trial]) -> None:
+    if not trials:
+        raise GeofixError("no trials to export")
+    first = trials[0]
+    for t in trials[1:]:
+        if t.measured.shape != first.measured.shape or t.leg_starts != first.leg_starts:
+            raise GeofixError("trials to export must have the same samples, beams and legs")
+
+
+def load_exported(path: str | Path) -> tuple[Grid, list[Trial]]:
+    """Read a file written by :func:`export_trials` back into a map and trials.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The netCDF file.
+
+    Returns
+    -------
+    tuple
+        ``(Grid, [Trial, ...])``, equal to what was exported (tuples in the grid's
+        ``meta`` come back as lists).
+
+    Raises
+    ------
+    GeofixError
+        The file is missing, unreadable, or not a geofix trials export.
+    """
+    import xarray as xr
+
+    try:
+        with xr.open_dataset(path) as opened:
+            ds = opened.load()
+    except (OSError, ValueError) as exc:
+        raise GeofixError(f"cannot read exported trials {path}: {exc}") from None
+    if ds.attrs.get("geofix_trials") != 1:
+        raise GeofixError(f"{path} is not a geofix trials export (no geofix_trials attribute)")
+    return _grid_from(ds), [_trial_from(ds, k) for k in range(ds.sizes["trial"])]
+
+
+def _grid_from(ds) -> Grid:
+    a = ds.attrs
+    return Grid(
+        ds["z"].values,
+        x0=float(a["grid_x0"]),
+        y0=float(a["grid_y0"]),
+        dx=float(a["grid_dx"]),
+        dy=float(a["grid_dy"]),
+        kind=str(a["grid_kind"]),
+        units=str(a["grid_units"]),
+        name=str(a["grid_name"]),
+        meta=json.loads(a["grid_meta_json"]),
+    )
+
+
+def _trial_from(ds, k: int) -> Trial:
+    def pair(name: str) -> np.ndarray:
+        return np.column_stack([ds[f"{name}_x"].values[k], ds[f"{name}_y"].values[k]])
+
+    return Trial(
+        truth=pair("truth"),
+        true_heading=ds["true_heading"].values[k],
+        indicated=pair("indicated"),
+        indicated_heading=ds["indicated_heading"].values[k],
+        times=ds["times"].values[k],
+        measured=ds["measured"].values[k],
+        offsets=np.column_stack([ds["offset_across"].values, ds["offset_along"].values]),
+        sigma_position=ds["sigma_position"].values[k],
+        leg_starts=tuple(int(s) for s in ds["leg_start"].values),
+        noise_std=float(ds["noise_std"].values[k]),
+        sensor=str(ds.attrs["sensor"]),
+        map_error_std=float(ds["map_error_std"].values[k]),
+        index=int(ds["trial_index"].values[k]),
+        extras=_extras_from(ds, k),
+    )
+
+
+def _extras_from(ds, k: int) -> dict:
+    extras: dict = {}
+    pending: dict = {}
+    for var in ds.data_vars.values():
+        key = var.attrs.get("extra_key")
+        if key is None:
+            continue
+        component = var.attrs["extra_component"]
+        value = var.values[k]
+        if component == "scalar":
+            extras[key] = float(value)
+        elif component in ("x", "y"):
+            pending.setdefault(key, {})[component] = value
+        else:
+            extras[key] = value
+    for key, parts in pending.items():
+        extras[key] = np.column_stack([parts["x"], parts["y"]])
+    return extras

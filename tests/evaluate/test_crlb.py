@@ -1,0 +1,200 @@
+"""Cramér–Rao bounds: hand-computed information, batch and recursive bounds, campaign keys."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from geofix.evaluate import run_campaign
+from geofix.evaluate.crlb import (
+    batch_bound,
+    beam_gradients,
+    inverse_trace,
+    process_variances,
+    recursive_bound,
+    rms_bound,
+    sample_information,
+    trial_crlb,
+)
+from geofix.evaluate.metrics import end_mahalanobis, summarize
+from geofix.maps.grid import Grid
+from geofix.maps.synthetic import planar_grid
+from geofix.sim.scenario import scenario_from_dict
+from geofix.sim.trial import Trial
+
+
+def _bowl(a=0.02, cell=10.0, n=101):
+    """``z = a (x^2 + y^2) / 2`` centred on the grid: gradient ``(a x, a y)`` exactly."""
+    c = cell * (np.arange(n) - n // 2)
+    values = 0.5 * a * (c[None, :] ** 2 + c[:, None] ** 2)
+    return Grid(values, x0=c[0], y0=c[0], dx=cell, dy=cell, name="bowl")
+
+
+def test_plane_information_is_beams_times_outer_product_of_slope():
+    grid = planar_grid((60, 60), 10.0, slope_x=0.3, slope_y=-0.1)
+    track = np.column_stack([np.linspace(100, 400, 7), np.full(7, 300.0)])
+    offsets = np.array([[-20.0, 0.0], [0.0, 0.0], [20.0, 0.0]])
+    gx, gy = beam_gradients(grid, track, np.full(7, 0.7), offsets)
+    np.testing.assert_allclose(gx, 0.3)
+    np.testing.assert_allclose(gy, -0.1)
+    var = np.array([4.0, 1.0, 4.0])
+    info = sample_information(gx, gy, var)
+    g = np.array([0.3, -0.1])
+    np.testing.assert_allclose(info, np.broadcast_to(1.5 * np.outer(g, g), (7, 2, 2)))
+    # a plane says nothing along its contours: the batch bound is infinite
+    assert np.isinf(inverse_trace(info.sum(axis=0)))
+    assert np.isinf(batch_bound(info)).all()
+
+
+def test_batch_bound_on_a_bowl_matches_the_hand_computed_inverse():
+    a, var = 0.02, 0.25
+    grid = _bowl(a)
+    track = np.array([[100.0, 0.0], [0.0, 150.0], [-120.0, -60.0], [55.0, 75.0]])
+    gx, gy = beam_gradients(grid, track, np.zeros(4), np.zeros((1, 2)))
+    info = sample_information(gx, gy, var)
+    x, y = track.T
+    j = a**2 / var * np.array([[np.sum(x * x), np.sum(x * y)], [np.sum(x * y), np.sum(y * y)]])
+    np.testing.assert_allclose(info.sum(axis=0), j, rtol=1e-9)
+    np.testing.assert_allclose(batch_bound(info), np.linalg.inv(j), rtol=1e-9)
+    assert inverse_trace(j) == pytest.approx(np.trace(np.linalg.inv(j)))
+
+
+def test_missing_measurements_carry_no_information():
+    gx = np.ones((3, 2))
+    gy = np.zeros((3, 2))
+    valid = np.array([[True, False], [False, False], [True, True]])
+    info = sample_information(gx, gy, 2.0, valid=valid)
+    np.testing.assert_allclose(info[:, 0, 0], [0.5, 0.0, 1.0])
+
+
+def test_recursive_bound_equals_the_scalar_kalman_variance_when_isotropic():
+    i, q, p0, n = 0.04, 3.0, 400.0, 60
+    info = np.broadcast_to(i * np.eye(2), (n, 2, 2))
+    bounds = recursive_bound(info, np.full(n - 1, q), p0)
+    p = 1.0 / (1.0 / p0 + i)
+    expected = [p]
+    for _ in range(n - 1):
+        p = 1.0 / (1.0 / (p + q) + i)
+        expected.append(p)
+    np.testing.assert_allclose(bounds[:, 0, 0], expected, rtol=1e-12)
+    np.testing.assert_allclose(bounds[:, 1, 1], expected, rtol=1e-12)
+    np.testing.assert_allclose(bounds[:, 0, 1], 0.0, atol=1e-12)
+    steady = 0.5 * (-q + np.sqrt(q * q + 4.0 * q / i))  # P^2 + qP - q/i = 0
+    assert bounds[-1, 0, 0] == pytest.approx(steady, rel=1e-9)
+
+
+def test_recursive_bound_without_information_is_the_prior_grown_by_the_ins():
+    sigma = np.sqrt(100.0 + 4.0 * np.arange(20.0) ** 2)
+    info = np.zeros((20, 2, 2))
+    info[:, 0, 0] = 0.5  # a plane sloping along x only
+    bounds = recursive_bound(info, process_variances(sigma), sigma[0] ** 2)
+    np.testing.assert_allclose(bounds[:, 1, 1], sigma**2, rtol=1e-12)
+    assert np.all(bounds[1:, 0, 0] < 2.0)
+
+
+def _trial_on(grid, n=30, beams=1):
+    t = np.arange(n) * 10.0
+    truth = np.column_stack([-150.0 + 10.0 * t / 10, 40.0 + 0 * t])
+    offsets = np.column_stack([np.linspace(-30, 30, beams), np.zeros(beams)])
+    return Trial(
+        truth=truth,
+        true_heading=np.full(n, np.pi / 2),
+        indicated=truth + 50.0,
+        indicated_heading=np.full(n, np.pi / 2),
+        times=t,
+        measured=np.zeros((n, beams)),
+        offsets=offsets if beams > 1 else np.zeros((1, 2)),
+        sigma_position=np.sqrt(50.0**2 + 0.5 * t),
+        leg_starts=(0, n // 2),
+        noise_std=0.5,
+    )
+
+
+def test_trial_crlb_batch_uses_the_last_leg_and_recursive_the_whole_mission():
+    a = 0.02
+    trial = _trial_on(_bowl(a))
+    bound = trial_crlb(trial, _bowl(a))
+    x, y = trial.truth[15:].T
+    j = a**2 / 0.25 * np.array([[np.sum(x * x), np.sum(x * y)], [np.sum(x * y), np.sum(y * y)]])
+    assert bound.batch_var_m2 == pytest.approx(np.trace(np.linalg.inv(j)), rel=1e-9)
+    assert bound.batch_m == pytest.approx(np.sqrt(bound.batch_var_m2))
+    # the recursive bound keeps the prior and all samples: finite, below the prior
+    assert 0 < bound.recursive_var_m2 < 2 * trial.sigma_position[-1] ** 2
+    # a flat map gives nothing: the recursive bound is the prior, the batch one infinite
+    flat = trial_crlb(trial, planar_grid((101, 101), 10.0, x0=-500.0, y0=-500.0))
+    assert flat.recursive_var_m2 == pytest.approx(2 * trial.sigma_position[-1] ** 2)
+    assert np.isinf(flat.batch_var_m2)
+
+
+def test_rms_bound_averages_variances_then_takes_the_root():
+    assert rms_bound([9.0, 16.0, np.nan]) == pytest.approx(np.sqrt(12.5))
+    assert rms_bound([1.0, np.inf]) is None
+    assert rms_bound([]) is None
+
+
+def test_mahalanobis_distance_and_the_false_fix_rule():
+    cov = np.array([[100.0, 0.0], [0.0, 25.0]])
+    assert end_mahalanobis([30.0, 0.0], cov) == pytest.approx(3.0)
+    assert end_mahalanobis([0.0, 20.0], cov) == pytest.approx(4.0)
+    assert np.isnan(end_mahalanobis([1.0, 1.0], None))
+    assert np.isnan(end_mahalanobis([1.0, 1.0], np.zeros((2, 2))))
+    rows = pd.DataFrame(
+        {
+            "method": ["m"] * 4,
+            "trial": range(4),
+            "end_error_m": [200.0, 200.0, 200.0, 10.0],
+            "mean_track_error_m": 0.0,
+            "max_track_error_m": 0.0,
+            "leg_errors_m": [[0.0]] * 4,
+            "time_s": 0.1,
+            "n_calls": 1,
+            "evaluations": 1,
+            "ambiguous": [False, False, True, False],
+            # inside its 3-sigma ellipse, outside it, flagged, close
+            "end_mahalanobis": [2.0, 5.0, 9.0, np.nan],
+            "failed": False,
+        }
+    )
+    assert summarize(rows, cell_m=50.0)["m"]["false_fix_rate"] == pytest.approx(0.25)
+    no_cov = rows.assign(end_mahalanobis=np.nan)
+    assert summarize(no_cov, cell_m=50.0)["m"]["false_fix_rate"] == pytest.approx(0.5)
+
+
+def _scenario():
+    return scenario_from_dict(
+        {
+            "name": "crlb-small",
+            "map": {"path": "builtin:mb_1km"},
+            "track": {
+                "start_cell": [60, 60],
+                "heading_deg": 45,
+                "speed_m_s": 10,
+                "interval_s": 60,
+                "samples": 20,
+            },
+            "sensor": {"type": "singlebeam", "noise_std": 2.0},
+            "ins": {"initial_error_m": [1500, -1000], "velocity_error_m_s": 0.05},
+            "trials": 3,
+            "seed": 3,
+        }
+    )
+
+
+def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path):
+    import sqlite3
+
+    result = run_campaign(_scenario(), ["tercom"], jobs=1, out_dir=tmp_path, progress=False)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["crlb_m"] == pytest.approx(result.summary["crlb_m"])
+    assert 0 < summary["crlb_m"] < 1500.0
+    assert summary["crlb_batch_m"] > 0
+    per_trial = result.frame["crlb_m"].to_numpy()
+    assert summary["crlb_m"] == pytest.approx(np.sqrt(np.mean(per_trial**2)))
+    assert "false_fix_rate" in summary["methods"]["tercom"]
+    assert result.frame["end_mahalanobis"].notna().all()  # tercom gives a covariance
+    with sqlite3.connect(tmp_path / "results.sqlite") as db:
+        db.execute("DROP TABLE trial_bounds")
+    again = run_campaign(_scenario(), ["tercom"], jobs=1, out_dir=tmp_path, progress=False)
+    assert again.computed == 0
+    assert again.summary["crlb_m"] == pytest.approx(result.summary["crlb_m"])
