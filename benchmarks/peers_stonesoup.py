@@ -198,8 +198,9 @@ def compare(scen, trials: int, points: int = 61, particles: int = 5000) -> dict:
     from geofix.sim.simulate import prepare_map, simulate_trial
 
     grid = prepare_map(scen)
-    ours_pmf = Pmf(points=points)
-    ours_pf = Pf(particles=particles)
+    # Same grid size and particle count as the peers: no adaptive growth.
+    ours_pmf = Pmf(points=points, max_points=points)
+    ours_pf = Pf(particles=particles, max_particles=particles)
     runs = {
         "geofix pmf": lambda p, r: ours_pmf.match(p, r).track,
         "stonesoup pmf": lambda p, r: stonesoup_pmf(p, points, ours_pmf.extent_sigmas),

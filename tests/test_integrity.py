@@ -8,9 +8,20 @@ must say so (``Fix.ambiguous``) instead of returning a confident wrong fix.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from geofix.evaluate.runner import method_rng, run_trial
+from geofix.filters.sitan import posterior_too_wide
+from geofix.maps.synthetic import planar_grid
+from geofix.match import integrity, tercom
+from geofix.match.base import MatchProblem
+from geofix.match.integrity import (
+    cover_covariance,
+    information_covariance,
+    terrain_integrity,
+    terrain_snr,
+)
 from geofix.match.registry import available_methods, parse_method_spec
 from geofix.sim.scenario import scenario_from_dict
 from geofix.sim.simulate import prepare_map, simulate_trial
@@ -21,24 +32,6 @@ _NAVO_X0, _NAVO_Y0 = 620153.872885373, 7243549.911727688
 NAVO_REGION = [_NAVO_X0 + 600, _NAVO_X0 + 2200, _NAVO_Y0 + 800, _NAVO_Y0 + 2000]
 TRIALS = 4
 SENSORS = ("singlebeam", "multibeam")
-
-#: Methods known to return confident wrong fixes here: (method, sensor) -> why.
-_RESIDUAL_ONLY = "residual-only flag: on a plain every position fits within the noise"
-KNOWN_UNFLAGGED: dict[tuple[str, str], str] = {
-    **{(m, s): _RESIDUAL_ONLY for m in ("iccp", "iccp-multipath", "icp") for s in SENSORS},
-    **{
-        ("tercom-icp", s): "ICP residual flag only; the coarse TERCOM flag is dropped"
-        for s in SENSORS
-    },
-    **{
-        ("sitan", s): "innovation-consistency flag only: a wide posterior is not flagged"
-        for s in SENSORS
-    },
-    ("ga-sca", "multibeam"): "rival pseudo-likelihood with the noise as scale: overconfident",
-}
-
-#: Of those, the ones whose covariance does not cover the error either (false fixes).
-KNOWN_FALSE_FIXES = {k: v for k, v in KNOWN_UNFLAGGED.items() if k != ("sitan", "singlebeam")}
 
 
 def navo_scenario(sensor: str, trials: int = TRIALS, seed: int = 8):
@@ -80,20 +73,15 @@ def navo_trials():
     return cases
 
 
-def _method_params(known: dict):
-    params = []
-    for name in available_methods():
-        for sensor in SENSORS:
-            marks = []
-            if (name, sensor) in known:
-                reason = known[name, sensor]
-                marks.append(pytest.mark.xfail(reason=reason, strict=True))
-            params.append(pytest.param(name, sensor, marks=marks, id=f"{name}-{sensor}"))
-    return params
+def _method_params():
+    return [
+        pytest.param(name, sensor, id=f"{name}-{sensor}")
+        for name in available_methods()
+        for sensor in SENSORS
+    ]
 
 
 def test_the_survey_is_flatter_than_the_noise(navo_trials):
-    from geofix.match.tercom import terrain_snr
 
     for scen, grid, trials in navo_trials.values():
         for trial in trials:
@@ -127,7 +115,7 @@ def _outcomes(name, sensor, navo_trials):
     return _OUTCOMES[name, sensor]
 
 
-@pytest.mark.parametrize(("name", "sensor"), _method_params(KNOWN_UNFLAGGED))
+@pytest.mark.parametrize(("name", "sensor"), _method_params())
 def test_every_method_flags_the_flat_survey(name, sensor, navo_trials):
     """Flagged, or right (within 3 cells), on all trials but at most one."""
     rows = _outcomes(name, sensor, navo_trials)
@@ -135,9 +123,71 @@ def test_every_method_flags_the_flat_survey(name, sensor, navo_trials):
     assert sum(good) >= len(rows) - 1, f"{name} on {sensor}: (flag, cells, sigmas) {rows}"
 
 
-@pytest.mark.parametrize(("name", "sensor"), _method_params(KNOWN_FALSE_FIXES))
+@pytest.mark.parametrize(("name", "sensor"), _method_params())
 def test_no_method_gives_a_false_fix(name, sensor, navo_trials):
     """The campaign's false-fix rule: far (> 3 cells), unflagged and outside its 3 sigmas."""
     rows = _outcomes(name, sensor, navo_trials)
     false = [not flag and cells > 3.0 and not maha <= 3.0 for flag, cells, maha in rows]
     assert sum(false) <= 1, f"{name} on {sensor}: (flag, cells, sigmas) {rows}"
+
+
+# ---------------------------------------------------------------------- the shared helpers
+def _plane_problem(slope_x: float, slope_y: float, noise: float = 0.5, sigma: float = 30.0):
+
+    grid = planar_grid((80, 80), 10.0, slope_x, slope_y, offset=-100.0)
+    n = 12
+    track = np.column_stack([np.linspace(200.0, 600.0, n), np.full(n, 400.0)])
+    return MatchProblem(
+        grid=grid,
+        indicated=track,
+        heading=np.full(n, np.pi / 2),
+        offsets=np.zeros((1, 2)),
+        measured=grid.sample(track[:, 0], track[:, 1])[:, None],
+        sigma_position=np.full(n, sigma),
+        times=np.arange(n) * 10.0,
+        noise_std=noise,
+    )
+
+
+def test_information_covariance_on_a_plane_is_the_hand_computed_bound():
+
+    problem = _plane_problem(0.2, -0.1)
+    g = np.array([0.2, -0.1])
+    expected = np.linalg.inv(12 * np.outer(g, g) / 0.25 + np.eye(2) / 30.0**2)
+    got = information_covariance(problem, problem.indicated)
+    np.testing.assert_allclose(got, expected, rtol=1e-6)
+
+
+def test_terrain_snr_and_flag_on_a_plane():
+
+    steep = _plane_problem(0.05, 0.0)  # 400 m of track: 20 m of relief, std ~6.9 m
+    flat = _plane_problem(0.0005, 0.0)  # 0.2 m of relief under 0.5 m of noise
+    assert terrain_snr(steep, steep.indicated) > 10
+    assert terrain_snr(flat, flat.indicated) < 0.5
+    assert not terrain_integrity(steep, steep.indicated, None, 1.0).flat
+    assert terrain_integrity(flat, flat.indicated, None, 1.0).flat
+
+
+def test_cover_covariance_widens_only_where_the_bound_is_larger():
+
+    own = np.diag([4.0, 1.0])
+    bound = np.diag([1.0, 9.0])
+    np.testing.assert_allclose(cover_covariance(own, bound), np.diag([4.0, 9.0]))
+    np.testing.assert_allclose(cover_covariance(None, bound), bound)
+    rot = np.array([[np.cos(0.4), -np.sin(0.4)], [np.sin(0.4), np.cos(0.4)]])
+    out = cover_covariance(rot @ own @ rot.T, bound)
+    for c in (rot @ own @ rot.T, bound):
+        assert np.linalg.eigvalsh(out - c).min() > -1e-9
+
+
+def test_sitan_wide_posterior_rule():
+
+    # exp(-r^2 / (2 lambda)) > 0.05  <=>  lambda > r^2 / (2 ln 20): r = 6 m -> 6.01 m^2
+    assert posterior_too_wide(np.diag([6.1, 1.0]), 6.0, 0.05)
+    assert not posterior_too_wide(np.diag([5.9, 5.9]), 6.0, 0.05)
+    assert posterior_too_wide(np.full((2, 2), np.inf), 6.0, 0.05)
+
+
+def test_tercom_still_exports_terrain_snr():
+
+    assert tercom.terrain_snr is integrity.terrain_snr is terrain_snr

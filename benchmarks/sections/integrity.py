@@ -213,10 +213,12 @@ def _navo_part(trials: int) -> str:
     verdict = ", ".join(failing) if failing else "none"
     text += (
         f"\nMethods giving confident wrong fixes on more than 10 % of the trials: {verdict}. "
-        "Their integrity flag tests the residual (or the innovation) against the noise, "
-        "which every position passes on a plain; the rule that fixes it, used by "
-        "`tercom`, flags a fix when the map's standard deviation over the matched "
-        "footprints is below the sensor noise (`geofix.match.tercom.terrain_snr < 1`).\n"
+        "A residual (or innovation) test alone cannot catch a plain, since every position "
+        "fits within the noise there; every batch matcher therefore also flags a fix when "
+        "the map's standard deviation over the matched footprints is below the sensor "
+        "noise (`geofix.match.integrity.terrain_snr`; `ga-sca` uses 0.6 of it), SITAN when "
+        "more than 5 % of its Gaussian posterior lies beyond 3 cells, and the point-mass "
+        "and particle filters when more than 5 % of their posterior does.\n"
     )
     return text
 

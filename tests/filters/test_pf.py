@@ -79,7 +79,9 @@ def test_resampling_and_roughening_on_low_ess():
     state = PfState(particles, log_w - np.log(3.0), cell=10.0)
     from geofix.filters.base import Motion
 
-    moved = Pf(particles=1000).predict(state, Motion(np.array([5.0, 0.0]), 1.0, 1e-6), rng)
+    moved = Pf(particles=1000, max_particles=1000).predict(
+        state, Motion(np.array([5.0, 0.0]), 1.0, 1e-6), rng
+    )
     assert moved.resamples == 1
     assert np.allclose(np.exp(moved.log_weight), 1e-3)
     # every particle sits near one of the three survivors, jittered by Gordon's rule
@@ -106,3 +108,34 @@ def test_settings_and_errors():
     far = MatchProblem(**{**problem.__dict__, "indicated": problem.indicated - 1e6})
     with pytest.raises(MatchError):
         Pf().match(far, np.random.default_rng(0))
+
+
+def test_converges_from_a_prior_much_wider_than_the_cell():
+    from test_pmf import _wide_prior_problem
+
+    problem, truth = _wide_prior_problem(0)
+    cell = problem.grid.cell_size
+    # 5000 random draws over a prior 60 cells wide (1 sigma): a wrong place, with confidence
+    few = Pf(max_particles=5000, discretisation_noise=False).match(
+        problem, np.random.default_rng(0)
+    )
+    assert np.hypot(*(few.track[-1] - truth[-1])) > 20 * cell and not few.ambiguous
+    fix = Pf().match(problem, np.random.default_rng(0))
+    assert np.hypot(*(fix.track[-1] - truth[-1])) < 0.5 * cell
+    assert not fix.ambiguous
+
+
+def test_prior_is_a_stratified_sample_sized_by_its_area():
+    problem, _ = _fractal_problem(sigma0=100.0)  # 10 m cells, +-4 sigma box 800 m wide
+    pf = Pf(particles=1000, max_particles=50_000)
+    state = pf.initialize(problem, np.random.default_rng(0))
+    assert state.particles.shape[0] == 160**2  # (800 m / 5 m)^2 squares, one particle each
+    assert state.spacing == pytest.approx(5.0)
+    offsets = state.particles - problem.indicated[0]
+    counts = np.histogram2d(*offsets.T, bins=160, range=[[-400, 400], [-400, 400]])[0]
+    assert np.all(counts == 1)
+    mean, cov = pf.estimate(state)  # the prior's moments, from the weights
+    np.testing.assert_allclose(mean, problem.indicated[0], atol=1.0)
+    np.testing.assert_allclose(cov, 100.0**2 * np.eye(2), rtol=0.02, atol=50.0)
+    capped = Pf(particles=1000, max_particles=4000).initialize(problem, np.random.default_rng(0))
+    assert capped.particles.shape[0] == 63**2  # the most squares within max_particles

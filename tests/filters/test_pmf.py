@@ -1,5 +1,6 @@
 """Point-mass filter: the Kalman posterior on a plane, log-space robustness, a real map."""
 
+from dataclasses import replace
 from importlib import resources
 
 import numpy as np
@@ -8,7 +9,7 @@ import pytest
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _grid_ops as ops
 from geofix.filters.base import motions, observations, run_filter
-from geofix.filters.pmf import Pmf, node_field_variance
+from geofix.filters.pmf import Pmf, PmfState, node_field_variance
 from geofix.maps.synthetic import fractal_terrain, planar_grid
 from geofix.match.base import MatchProblem, footprint_xy
 from geofix.match.registry import parse_method_spec
@@ -192,3 +193,124 @@ def test_settings_and_errors():
     )
     with pytest.raises(MatchError):
         Pmf().match(far, None)
+
+
+def _wide_prior_problem(seed, n=12, sigma0=600.0, noise=0.5):
+    """Nine beams over a rough fractal seabed (10 m cells), prior 60 cells wide (1 sigma)."""
+    rng = np.random.default_rng(seed)
+    grid = fractal_terrain((400, 400), 10.0, rng=rng, std=15.0, hurst=0.5)
+    heading = np.full(n, np.radians(60.0))
+    step = 40.0 * np.array([np.sin(heading[0]), np.cos(heading[0])])
+    truth = np.array([1800.0, 1800.0]) + np.arange(n)[:, None] * step
+    offsets = np.stack([np.linspace(-100.0, 100.0, 9), np.zeros(9)], axis=1)
+    x, y = footprint_xy(truth, heading, offsets)
+    problem = MatchProblem(
+        grid=grid,
+        indicated=truth + rng.normal(0.0, sigma0, 2),
+        heading=heading,
+        offsets=offsets,
+        measured=grid.sample(x, y) + rng.normal(0.0, noise, x.shape),
+        sigma_position=np.full(n, sigma0),
+        times=np.arange(n) * 10.0,
+        noise_std=noise,
+    )
+    return problem, truth
+
+
+@pytest.mark.parametrize("seed", [0, 5])
+def test_converges_from_a_prior_much_wider_than_the_cell(seed):
+    problem, truth = _wide_prior_problem(seed)
+    cell = problem.grid.cell_size
+    # a fixed 61-node grid that follows the moments alone: 100 m (10 cells) between the
+    # prior's nodes, and it locks on a wrong place with confidence
+    old = Pmf(max_points=61, support_nats=0.0).match(problem, None)
+    assert np.hypot(*(old.track[-1] - truth[-1])) > 20 * cell and not old.ambiguous
+    for pmf in (Pmf(), Pmf(max_points=61), Pmf(support_nats=0.0)):  # both remedies, each
+        fix = pmf.match(problem, None)
+        assert np.hypot(*(fix.track[-1] - truth[-1])) < 0.5 * cell
+        assert not fix.ambiguous
+
+
+def test_node_count_follows_the_width_of_the_posterior():
+    pmf = Pmf()  # 61 to 301 nodes, at most 0.5 cell apart while the count allows
+    spacing, shape = pmf.grid_layout(np.array([100.0, 600.0]), cell=10.0)
+    assert shape == (61, 241)
+    np.testing.assert_allclose(spacing, [200.0 / 60, 5.0])
+    spacing, shape = pmf.grid_layout(np.array([3000.0, 3000.0]), cell=10.0)
+    assert shape == (301, 301)
+    np.testing.assert_allclose(spacing, [20.0, 20.0])
+    # the prior grid of a wide prior, then a small grid once the posterior has shrunk
+    problem, _ = _wide_prior_problem(0, n=3)
+    state = pmf.initialize(problem, None)
+    assert state.shape == (301, 301)
+    narrow = ops.normalise(
+        ops.gaussian_log_density(
+            ops.node_positions(*state.frame, state.shape), state.centre, 4.0 * np.eye(2)
+        )
+    )
+    _, shape = pmf.ideal_frame(state, state.centre, 400.0 * np.eye(2))
+    assert shape == (301, 301)  # zoom limited to max_zoom per regrid
+    state = replace(state, log_weight=narrow)
+    for _ in range(4):
+        (centre, axes, spacing), shape = pmf.ideal_frame(state, state.centre, 4.0 * np.eye(2))
+        moved = ops.resample_grid(
+            state.log_weight,
+            state.frame,
+            (centre, axes, spacing),
+            (state.centre, 4.0 * np.eye(2)),
+            shape,
+        )
+        state = replace(state, log_weight=moved, centre=centre, axes=axes, spacing=spacing)
+    assert state.shape == (61, 61)
+
+
+def test_a_small_far_mode_stays_on_the_grid():
+    # 1e-4 of the mass 2 km from a narrow main mode: the grid keeps covering it
+    pmf = Pmf()
+    old = (np.zeros(2), np.eye(2), np.array([50.0, 50.0]))
+    xy = ops.node_positions(*old, 101)
+    main = ops.gaussian_log_density(xy, np.zeros(2), 25.0 * np.eye(2))
+    far = ops.gaussian_log_density(xy, np.array([2000.0, 0.0]), 25.0 * np.eye(2)) + np.log(1e-4)
+    log_w = ops.normalise(np.logaddexp(main, far))
+    state = PmfState(log_w, *old, cell=10.0)
+    mean, cov = pmf.estimate(state)
+    (centre, axes, spacing), shape = pmf.ideal_frame(state, mean, cov)
+    reach = 0.5 * spacing * (np.array(shape) - 1)
+    assert np.max(np.abs((np.array([2000.0, 0.0]) - centre) @ axes) / reach) < 1.0
+    (_, axes, spacing), shape = Pmf(support_nats=0.0).ideal_frame(state, mean, cov)
+    assert (0.5 * spacing * (np.array(shape) - 1)).max() < 1000.0  # the moments alone
+
+
+def test_fast_field_prediction_matches_the_measurement_model():
+    from geofix.filters.measurement import predict_measurements
+
+    rng = np.random.default_rng(8)
+    grid = fractal_terrain((60, 50), 10.0, rng=rng, std=5.0)
+    values = grid.values.copy()
+    values[20:25, 10:14] = np.nan  # a hole: NaN wherever it touches the bilinear stencil
+    grid = grid.with_values(values)
+    positions = rng.uniform(-50.0, 650.0, (7, 9, 2))  # some off the map
+    offsets = rng.normal(0.0, 30.0, (5, 2))
+    want = predict_measurements(grid, positions, 0.7, offsets)
+    got = ops.predict_field(grid, positions, 0.7, offsets)
+    assert got.shape == (7, 9, 5)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    assert np.isnan(want).any() and np.isfinite(want).any()
+    np.testing.assert_allclose(got[np.isfinite(got)], want[np.isfinite(want)], atol=1e-9)
+
+
+def test_per_beam_noise_variance_is_accepted_and_left_alone():
+    from geofix.filters.base import Observation
+
+    problem = _plane_problem(np.random.default_rng(1))
+    pmf = Pmf()
+    state = pmf.initialize(problem, None)
+    var = np.array([1.0, 1.0, 1.0])
+    var.setflags(write=False)
+    obs = observations(problem)[0]
+    per_beam = Observation(obs.values, obs.indicated, obs.heading, obs.offsets, var, 0)
+    scalar = Observation(obs.values, obs.indicated, obs.heading, obs.offsets, 1.0, 0)
+    a = pmf.update(state, per_beam, problem.grid, None)
+    b = pmf.update(state, scalar, problem.grid, None)
+    np.testing.assert_allclose(a.log_weight, b.log_weight)
+    np.testing.assert_array_equal(var, 1.0)

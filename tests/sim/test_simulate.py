@@ -1,5 +1,6 @@
 """Scenario -> Trial simulation on a synthetic map."""
 
+import dataclasses
 import sys
 import types
 
@@ -7,9 +8,10 @@ import numpy as np
 import pytest
 
 from geofix.errors import ConfigError, TrackOffMapError
+from geofix.evaluate.crlb import scenario_beam_variance, trial_beam_variance
 from geofix.maps.grid import Grid
 from geofix.nav.ins import position_sigma
-from geofix.sensors import compensate_first_order_lag
+from geofix.sensors import beam_noise_std, compensate_first_order_lag
 from geofix.sim import (
     check_track_on_map,
     prepare_map,
@@ -18,6 +20,7 @@ from geofix.sim import (
     simulate_trials,
     start_position,
 )
+from geofix.sim.export import load_exported, trials_dataset
 
 
 def smooth_field_grid(kind="gravity", hole=False):
@@ -215,3 +218,75 @@ def test_prepare_map_passes_the_map_block_to_the_loader(monkeypatch):
     )
     assert isinstance(prepare_map(sc), Grid)
     assert calls == [("builtin:x", "z", "gravity", (-146.0, -144.0, 54.0, 56.0), 100.0)]
+
+
+def multibeam_scenario(map_error_std=0.0):
+    return scenario(
+        sensor={
+            "type": "multibeam",
+            "beams": 9,
+            "swath_width_m": 400.0,
+            "noise_std": 0.5,
+            "edge_noise_factor": 3.0,
+            "map_error_std": map_error_std,
+        }
+    )
+
+
+def test_multibeam_trial_carries_the_per_beam_noise_of_its_sensor():
+    grid = smooth_field_grid(kind="depth")
+    sc = multibeam_scenario()
+    trial = simulate_trial(sc, grid, 0)
+    expected = beam_noise_std(trial.offsets, sc.sensor)
+    np.testing.assert_array_equal(trial.beam_noise_std, expected)
+    # nadir 0.5, edges three times as noisy, growing linearly with |across| (+-200 m)
+    np.testing.assert_allclose(trial.beam_noise_std[[0, 4, 8]], [1.5, 0.5, 1.5])
+    np.testing.assert_allclose(trial.beam_noise_std[[2, 6]], [1.0, 1.0])
+    assert trial.noise_std == 0.5
+    problem = trial.problem(grid, slice(5, 20))
+    np.testing.assert_array_equal(problem.beam_noise_std, expected)
+    np.testing.assert_allclose(problem.beam_noise_var(), expected**2)
+    np.testing.assert_allclose(
+        trial_beam_variance(trial), scenario_beam_variance(sc, trial.offsets)
+    )
+
+
+def test_per_beam_noise_holds_the_map_error_like_the_scalar():
+    grid = smooth_field_grid(kind="depth")
+    sc = multibeam_scenario(map_error_std=1.2)
+    trial = simulate_trial(sc, grid, 0)
+    expected = np.hypot(beam_noise_std(trial.offsets, sc.sensor), 1.2)
+    np.testing.assert_allclose(trial.beam_noise_std, expected)
+    assert trial.beam_noise_std[4] == pytest.approx(trial.noise_std)
+    np.testing.assert_allclose(
+        trial.problem(grid).beam_noise_var(),
+        0.5**2 * (1 + 2 * np.abs(np.linspace(-1, 1, 9))) ** 2 + 1.2**2,
+    )
+    np.testing.assert_allclose(
+        trial_beam_variance(trial), scenario_beam_variance(sc, trial.offsets)
+    )
+
+
+def test_single_sensor_trial_has_one_beam_noise():
+    trial = simulate_trial(scenario(), smooth_field_grid(), 1)
+    np.testing.assert_array_equal(trial.beam_noise_std, [1.0])
+
+
+def test_per_beam_noise_survives_export_and_is_absent_when_never_set(tmp_path):
+    grid = smooth_field_grid(kind="depth")
+    sc = multibeam_scenario(map_error_std=0.3)
+    with_noise = simulate_trial(sc, grid, 0)
+    without = dataclasses.replace(simulate_trial(sc, grid, 1), beam_noise_std=None)
+    trials_dataset(grid, [with_noise, without]).to_netcdf(tmp_path / "both.nc")
+    _, back = load_exported(tmp_path / "both.nc")
+    np.testing.assert_array_equal(back[0].beam_noise_std, with_noise.beam_noise_std)
+    assert back[1].beam_noise_std is None
+    trials_dataset(grid, [without]).to_netcdf(tmp_path / "none.nc")
+    _, back = load_exported(tmp_path / "none.nc")
+    assert back[0].beam_noise_std is None
+
+
+def test_trial_rejects_a_beam_noise_of_the_wrong_length():
+    trial = simulate_trial(multibeam_scenario(), smooth_field_grid(kind="depth"), 0)
+    with pytest.raises(ConfigError, match="beam_noise_std"):
+        dataclasses.replace(trial, beam_noise_std=np.ones(3))

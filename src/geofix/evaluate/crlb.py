@@ -231,14 +231,35 @@ def recursive_bound(info: np.ndarray, process_var, prior_var: float) -> np.ndarr
     return bounds
 
 
+def trial_beam_variance(trial) -> np.ndarray:
+    """Per-beam measurement variance a trial declares, field units squared.
+
+    Parameters
+    ----------
+    trial : Trial
+        Its ``beam_noise_std`` ``(b,)`` (or ``noise_std`` for every beam when it has none)
+        and ``map_error_std``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(b,)`` ``beam_noise_std^2 + map_error_std^2``; for a simulated trial equal to
+        :func:`scenario_beam_variance` of its scenario.
+    """
+    beams = np.asarray(trial.offsets).shape[0]
+    std = getattr(trial, "beam_noise_std", None)
+    std = np.full(beams, float(trial.noise_std)) if std is None else np.asarray(std, float)
+    return std**2 + float(trial.map_error_std) ** 2
+
+
 def trial_information(trial, grid: Grid, beam_var=None) -> np.ndarray:
     """Per-sample information along a trial's true track, 1/m^2, shape ``(n, 2, 2)``.
 
     ``beam_var`` (field units squared, scalar or ``(b,)``) defaults to
-    ``trial.noise_std^2 + trial.map_error_std^2``.
+    :func:`trial_beam_variance` (the trial's per-beam noise plus map error).
     """
     if beam_var is None:
-        beam_var = trial.noise_std**2 + trial.map_error_std**2
+        beam_var = trial_beam_variance(trial)
     beam_var = np.maximum(np.asarray(beam_var, float), 1e-12)
     gx, gy = beam_gradients(grid, trial.truth, trial.true_heading, trial.offsets)
     return sample_information(gx, gy, beam_var, valid=np.isfinite(trial.measured))
@@ -256,7 +277,7 @@ def trial_crlb(trial, grid: Grid, beam_var=None) -> TrialBound:
         The map the measurements were drawn from.
     beam_var : float or array_like, optional
         Measurement variance, field units squared, scalar or ``(b,)`` per beam; default
-        ``trial.noise_std^2 + trial.map_error_std^2``.
+        :func:`trial_beam_variance` (the trial's per-beam noise plus map error).
 
     Returns
     -------

@@ -1,8 +1,9 @@
 """Numerical kernels of the point-mass filter, all on log-densities.
 
-A point-mass grid is ``N x N`` nodes along two orthonormal axes (the columns of ``axes``),
+A point-mass grid is ``N0 x N1`` nodes along two orthonormal axes (the columns of ``axes``),
 ``spacing`` metres apart along each, centred on ``centre``. Node ``[i, j]`` sits at
-``centre + axes @ ((i - m) * spacing[0], (j - m) * spacing[1])`` with ``m = (N - 1) / 2``.
+``centre + axes @ ((i - m0) * spacing[0], (j - m1) * spacing[1])`` with
+``m_k = (N_k - 1) / 2``. A grid's ``shape`` is an int ``N`` (square) or a pair ``(N0, N1)``.
 Weights are kept as natural logarithms normalised to ``logsumexp = 0``; no function here
 takes the exponential of anything but ``log_weight - max(log_weight)``, so a density
 however peaked never underflows to an all-zero grid, and never produces NaN.
@@ -13,21 +14,62 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import correlate1d, map_coordinates
 
+from geofix.maps.grid import Grid
+from geofix.match.base import footprint_xy
+
 THREE_TAP_MAX_SIGMA = 0.8
 """Largest kernel sigma (in nodes) for the three-tap kernel; wider ones are sampled Gaussians
 (at 0.8 node both have the exact variance ``sigma^2`` to better than 1e-5)."""
 
 
-def node_offsets(points: int, spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Node coordinates along each grid axis relative to the centre, metres, ``(N,)`` each."""
-    steps = np.arange(points) - 0.5 * (points - 1)
-    return steps * spacing[0], steps * spacing[1]
+def node_offsets(shape, spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Node coordinates along each grid axis relative to the centre, metres.
+
+    ``shape`` is ``N`` or ``(N0, N1)``; the result is ``(N0,)`` and ``(N1,)``.
+    """
+    n0, n1 = np.broadcast_to(np.asarray(shape, dtype=int), 2)
+    u = (np.arange(n0) - 0.5 * (n0 - 1)) * spacing[0]
+    v = (np.arange(n1) - 0.5 * (n1 - 1)) * spacing[1]
+    return u, v
 
 
-def node_positions(centre, axes, spacing, points: int) -> np.ndarray:
-    """Absolute ``(x, y)`` of every node, metres, shape ``(N, N, 2)``."""
-    u, v = node_offsets(points, spacing)
+def node_positions(centre, axes, spacing, shape) -> np.ndarray:
+    """Absolute ``(x, y)`` of every node, metres, shape ``(N0, N1, 2)``."""
+    u, v = node_offsets(shape, spacing)
     return centre + u[:, None, None] * axes[:, 0] + v[None, :, None] * axes[:, 1]
+
+
+def predict_field(grid: Grid, positions, heading: float, offsets) -> np.ndarray:
+    """The field every beam reads from every position, ``(..., b)``; NaN off the map.
+
+    The same model as :func:`geofix.filters.measurement.predict_measurements` (bilinear
+    read of the map at each beam's footprint, NaN where any of the four cells is NaN or
+    off the map), computed by ``scipy.ndimage.map_coordinates`` -- about three times
+    faster on the hundreds of thousands of footprints of a wide grid or particle set.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    positions : numpy.ndarray
+        ``(..., 2)`` hypothesised vehicle positions, metres.
+    heading : float
+        Heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets, metres.
+    """
+    positions = np.asarray(positions, dtype=float)
+    offsets = np.asarray(offsets, dtype=float)
+    ox, oy = footprint_xy(np.zeros(2), np.asarray(heading, dtype=float), offsets)
+    col, row = grid.xy_to_cell(positions[..., 0].ravel(), positions[..., 1].ravel())
+    coords = np.empty((2, col.size, offsets.shape[0]))
+    np.add(row[:, None], oy / grid.dy, out=coords[0])
+    np.add(col[:, None], ox / grid.dx, out=coords[1])
+    values = np.asarray(grid.values, dtype=float)
+    out = map_coordinates(
+        values, coords.reshape(2, -1), order=1, mode="constant", cval=np.nan, prefilter=False
+    )
+    return out.reshape(*positions.shape[:-1], offsets.shape[0])
 
 
 def normalise(log_weight: np.ndarray) -> np.ndarray:
@@ -53,7 +95,7 @@ def moments(log_weight, centre, axes, spacing) -> tuple[np.ndarray, np.ndarray]:
     """
     w = np.exp(log_weight - log_weight.max())
     w /= w.sum()
-    u, v = node_offsets(w.shape[0], spacing)
+    u, v = node_offsets(w.shape, spacing)
     wu, wv = w.sum(axis=1), w.sum(axis=0)
     mu = np.array([wu @ u, wv @ v])
     du, dv = u - mu[0], v - mu[1]
@@ -66,7 +108,7 @@ def moments(log_weight, centre, axes, spacing) -> tuple[np.ndarray, np.ndarray]:
 def mass_beyond(log_weight, centre, axes, spacing, point, radius: float) -> float:
     """Share of the grid's probability farther than ``radius`` metres from ``point``."""
     w = np.exp(log_weight - log_weight.max())
-    u, v = node_offsets(w.shape[0], spacing)
+    u, v = node_offsets(w.shape, spacing)
     p = axes.T @ (np.asarray(point, float) - centre)
     far = (u[:, None] - p[0]) ** 2 + (v[None, :] - p[1]) ** 2 > radius**2
     return float(w[far].sum() / w.sum())
@@ -111,29 +153,31 @@ def convolve_log(log_weight: np.ndarray, kernels: tuple[np.ndarray, np.ndarray])
     return normalise(np.maximum(logp, floor) + top)
 
 
-def resample_grid(log_weight, old: tuple, new: tuple, fallback: tuple) -> np.ndarray:
+def resample_grid(log_weight, old: tuple, new: tuple, fallback: tuple, shape=None) -> np.ndarray:
     """Move a log-density from grid ``old`` onto grid ``new`` by linear interpolation.
 
     Parameters
     ----------
     log_weight : numpy.ndarray
-        ``(N, N)`` normalised log-weights on ``old``.
+        ``(N0, N1)`` normalised log-weights on ``old``.
     old, new : tuple
         ``(centre (2,), axes (2, 2), spacing (2,))`` of each grid, metres.
     fallback : tuple
         ``(mean (2,), cov (2, 2))`` of a Gaussian used for new nodes outside the old grid
         (never above the old grid's smallest density).
+    shape : int or tuple, optional
+        Nodes of the new grid, ``N`` or ``(N0, N1)``; the old grid's shape by default.
 
     Returns
     -------
     numpy.ndarray
-        ``(N, N)`` normalised log-weights on ``new``.
+        Normalised log-weights on ``new``, of ``shape``.
     """
-    n = log_weight.shape[0]
-    xy = node_positions(*new, n)
+    old_shape = np.array(log_weight.shape)
+    xy = node_positions(*new, log_weight.shape if shape is None else shape)
     log_density = log_weight - np.log(np.prod(old[2]))
-    frac = ((xy - old[0]) @ old[1]) / old[2] + 0.5 * (n - 1)
-    inside = np.all((frac >= 0.0) & (frac <= n - 1), axis=-1)
+    frac = ((xy - old[0]) @ old[1]) / old[2] + 0.5 * (old_shape - 1)
+    inside = np.all((frac >= 0.0) & (frac <= old_shape - 1), axis=-1)
     coords = np.moveaxis(frac, -1, 0)
     values = map_coordinates(log_density, coords, order=1, mode="nearest")
     outside = np.minimum(gaussian_log_density(xy, *fallback), log_density.min())

@@ -60,8 +60,11 @@ class Observation:
         Indicated heading, radians clockwise from north.
     offsets : numpy.ndarray
         ``(b, 2)`` body-frame beam offsets, metres.
-    noise_var : float
-        Measurement variance: sensor noise plus map error, map units squared.
+    noise_var : numpy.ndarray or float
+        Measurement variance, sensor noise plus map error, map units squared: ``(b,)``
+        per beam (a multibeam's outer beams are noisier than nadir; read-only when built
+        by :func:`observations`), or one float for every beam when the problem declares
+        no per-beam noise. The measurement functions accept both.
     index : int
         Sample index.
     """
@@ -70,7 +73,7 @@ class Observation:
     indicated: np.ndarray
     heading: float
     offsets: np.ndarray
-    noise_var: float
+    noise_var: np.ndarray | float
     index: int
 
 
@@ -97,8 +100,18 @@ def motions(problem: MatchProblem) -> list[Motion]:
 
 
 def observations(problem: MatchProblem) -> list[Observation]:
-    """The measurement of every sample, with the variance of sensor plus map error."""
-    noise_var = max(problem.noise_std**2 + problem.map_error_std**2, 1e-12)
+    """The measurement of every sample, with the variance of sensor plus map error.
+
+    ``noise_var`` (map units squared, floored at ``1e-12``) is
+    :meth:`MatchProblem.beam_noise_var`, one read-only ``(b,)`` array shared by all
+    observations, when the problem has ``beam_noise_std``; otherwise the float
+    ``noise_std^2 + map_error_std^2`` (the same for every beam).
+    """
+    if problem.beam_noise_std is None:
+        noise_var = max(problem.noise_std**2 + problem.map_error_std**2, 1e-12)
+    else:
+        noise_var = np.maximum(problem.beam_noise_var(), 1e-12)
+        noise_var.setflags(write=False)
     return [
         Observation(
             values=problem.measured[k],

@@ -47,7 +47,7 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
     return values.reshape(*positions.shape[:-1], offsets.shape[0])
 
 
-def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var: float) -> np.ndarray:
+def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var) -> np.ndarray:
     """Gaussian log-likelihood of the measured beams for every hypothesis.
 
     Parameters
@@ -56,8 +56,10 @@ def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var: float
         ``(..., b)`` predicted values (NaN off the map).
     measured : numpy.ndarray
         ``(b,)`` measured values (NaN = missing beam, ignored).
-    noise_var : float
-        Measurement variance (sensor + map error), map units squared.
+    noise_var : float or numpy.ndarray
+        Measurement variance (sensor + map error), map units squared: one value for
+        every beam or ``(b,)`` per beam (each beam's squared residual is divided by its
+        own variance).
 
     Returns
     -------
@@ -68,8 +70,9 @@ def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var: float
     use = np.isfinite(measured)
     if not use.any():
         return np.zeros(predicted.shape[:-1])
+    var = np.broadcast_to(np.asarray(noise_var, dtype=float), measured.shape)
     d = predicted[..., use] - measured[use]
-    ll = -0.5 * d**2 / noise_var
+    ll = -0.5 * d**2 / var[use]
     ll = np.where(np.isfinite(ll), ll, OFF_MAP_LOG_LIKELIHOOD)
     return ll.sum(axis=-1)
 

@@ -1,7 +1,6 @@
 r"""The bootstrap particle filter (PF): the same recursion as the PMF with weighted samples.
 
-``particles`` position hypotheses (absolute ``x, y``, metres) carry log-weights. Each
-sample:
+``M`` position hypotheses (absolute ``x, y``, metres) carry log-weights. Each sample:
 
 - **predict**: when the effective sample size ``ESS = 1 / sum(w^2)`` has fallen below
   ``resample_threshold * particles``, the set is resampled systematically (one uniform
@@ -18,6 +17,24 @@ sample:
 
 Resampling happens at the start of the prediction, so that the estimate after an update
 comes from the weighted set (less Monte-Carlo noise than from a freshly resampled one).
+
+**A prior wide compared with the map cell.** A multibeam swath's likelihood is often
+narrower than one map cell. ``particles`` random draws over a prior hundreds of cells
+across leave most cells empty, so the particle nearest the truth may score worse than a
+chance fit elsewhere, and the filter converges confidently on a wrong place. Three
+measures, the PMF's in particle form:
+
+- the particle count follows the posterior's area: ``M`` is the number of
+  ``max_spacing_cells``-sided squares in the ``+-extent_sigmas`` box of the prior (then,
+  at each resampling, of the current posterior), at least ``particles``, at most
+  ``max_particles``;
+- the prior is a stratified sample: one particle at a random point of each square of a
+  lattice over the ``+-extent_sigmas`` box, weighted by the prior density (an importance
+  sample with no empty cells and no clumps);
+- while the particles are sparse the likelihood is flattened by the field's variance
+  within one particle's share of the area (a square of side ``h``, ``h^2`` the box area
+  over ``M``), estimated from the field's differences over ``h`` at a subset of the
+  particles (``discretisation_noise``, as in the PMF); it vanishes as the set concentrates.
 The integrity flag is the PMF's: more than ``ambiguity_mass`` of the weight farther than
 ``ambiguity_radius_cells`` map cells from the weighted mean. All draws use the ``rng``
 handed to the filter.
@@ -32,8 +49,9 @@ import numpy as np
 from scipy.special import logsumexp
 
 from geofix.errors import ConfigError, MatchError
+from geofix.filters import _grid_ops as ops
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.measurement import log_likelihood, predict_measurements
+from geofix.filters.measurement import log_likelihood
 from geofix.maps.grid import Grid
 from geofix.match.base import MatchProblem
 from geofix.match.registry import register
@@ -51,6 +69,8 @@ class PfState:
         ``(M,)`` normalised log-weights (``logsumexp = 0``).
     cell : float
         Map cell size, metres (for the ambiguity radius).
+    spacing : float
+        Typical distance between neighbouring particles ``h``, metres (0: dense).
     evaluations : int
         Particle likelihoods evaluated so far.
     resamples : int
@@ -60,6 +80,7 @@ class PfState:
     particles: np.ndarray
     log_weight: np.ndarray
     cell: float
+    spacing: float = 0.0
     evaluations: int = 0
     resamples: int = 0
 
@@ -78,7 +99,19 @@ class Pf(RecursiveFilter):
     Parameters
     ----------
     particles : int
-        Number of particles ``M`` (at least 10).
+        Least number of particles ``M`` (at least 10).
+    max_particles : int
+        Most particles, however wide the posterior (200 000 keeps a 41-beam update near
+        0.2 s).
+    max_spacing_cells : float
+        Wanted spacing of the particles, map cells, that a wide posterior is given more
+        particles to keep (0.5, as the PMF's nodes).
+    extent_sigmas : float
+        Half-width of the box of the stratified prior and of the area that sets ``M``, in
+        posterior standard deviations.
+    discretisation_noise : bool
+        Flatten the likelihood by the field's variance within one particle's share of the
+        area (see the module text).
     resample_threshold : float
         Resample when ``ESS < resample_threshold * M`` (0.5, the common choice).
     roughening : float
@@ -92,36 +125,64 @@ class Pf(RecursiveFilter):
     name: ClassVar[str] = "pf"
 
     particles: int = 5000
+    max_particles: int = 200_000
+    max_spacing_cells: float = 0.5
+    extent_sigmas: float = 4.0
+    discretisation_noise: bool = True
     resample_threshold: float = 0.5
     roughening: float = 0.2
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
 
     def __post_init__(self) -> None:
-        if self.particles < 10:
-            raise ConfigError(f"pf: particles must be at least 10, got {self.particles}")
+        if self.particles < 10 or self.max_particles < self.particles:
+            raise ConfigError(
+                f"pf: particles must be at least 10 and at most max_particles, got {self.particles}"
+            )
+        if self.max_spacing_cells <= 0 or self.extent_sigmas <= 0:
+            raise ConfigError("pf: max_spacing_cells and extent_sigmas must be positive")
         if not 0.0 <= self.resample_threshold <= 1.0 or self.roughening < 0:
             raise ConfigError("pf: resample_threshold must be in [0, 1], roughening >= 0")
 
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> PfState:
-        """Particles drawn from ``N(indicated[0], sigma_position[0]^2 I)``, equal weights.
+        """A stratified sample of ``N(indicated[0], sigma_position[0]^2 I)``.
+
+        One particle uniformly in each square of a lattice over the ``+-extent_sigmas``
+        box (as many squares as :meth:`particle_count` allows), log-weighted by the prior
+        density.
 
         Raises
         ------
         MatchError
             No particle lies on valid map data.
         """
-        sigma = float(problem.sigma_position[0])
+        cell = problem.grid.cell_size
+        sigma = max(float(problem.sigma_position[0]), 1e-3 * cell)
         start = np.asarray(problem.indicated[0], dtype=float)
-        particles = start + sigma * rng.standard_normal((self.particles, 2))
-        if not problem.grid.contains(particles[:, 0], particles[:, 1]).any():
+        side = 2.0 * self.extent_sigmas * sigma
+        per_axis = int(np.ceil(np.sqrt(self.particle_count(side * side, cell))))
+        per_axis -= per_axis**2 > self.max_particles
+        h = side / per_axis
+        corner = (np.arange(per_axis) - 0.5 * per_axis) * h
+        lattice = np.stack(np.meshgrid(corner, corner, indexing="ij"), axis=-1).reshape(-1, 2)
+        particles = start + lattice + h * rng.random(lattice.shape)
+        if not np.isfinite(ops.predict_field(problem.grid, particles, 0.0, np.zeros((1, 2)))).any():
             raise MatchError("pf: the prior particles lie entirely off the map")
-        log_weight = np.full(self.particles, -np.log(self.particles))
-        return PfState(particles, log_weight, problem.grid.cell_size)
+        log_weight = -0.5 * np.sum((particles - start) ** 2, axis=1) / sigma**2
+        return PfState(particles, log_weight - logsumexp(log_weight), cell, spacing=h)
+
+    def particle_count(self, area: float, cell: float) -> int:
+        """Particles for a posterior box of ``area`` m^2 on a map of ``cell`` metres.
+
+        ``area / (max_spacing_cells * cell)^2``, clipped to ``[particles, max_particles]``.
+        """
+        wanted = area / (self.max_spacing_cells * cell) ** 2
+        return int(np.clip(np.ceil(wanted), self.particles, self.max_particles))
 
     def predict(self, state: PfState, motion: Motion, rng: np.random.Generator) -> PfState:
         """Resample and roughen if the ESS is low, then move by the INS plus process noise."""
-        if effective_sample_size(state.weights) < self.resample_threshold * self.particles:
+        count = state.particles.shape[0]
+        if effective_sample_size(state.weights) < self.resample_threshold * count:
             state = self._resample(state, rng)
         noise = np.sqrt(motion.process_var) * rng.standard_normal(state.particles.shape)
         particles = state.particles + np.asarray(motion.displacement, dtype=float) + noise
@@ -131,8 +192,11 @@ class Pf(RecursiveFilter):
         """Add every particle's measurement log-likelihood (all beams at once)."""
         if not np.isfinite(obs.values).any():
             return state
-        predicted = predict_measurements(grid, state.particles, obs.heading, obs.offsets)
-        log_weight = state.log_weight + log_likelihood(predicted, obs.values, obs.noise_var)
+        predicted = ops.predict_field(grid, state.particles, obs.heading, obs.offsets)
+        var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
+        if self.discretisation_noise and state.spacing > 0:
+            var = var + spread_field_variance(grid, state, obs, rng)
+        log_weight = state.log_weight + log_likelihood(predicted, obs.values, var)
         return replace(
             state,
             log_weight=log_weight - logsumexp(log_weight),
@@ -153,15 +217,25 @@ class Pf(RecursiveFilter):
         return bool(state.weights[far].sum() > self.ambiguity_mass)
 
     def _resample(self, state: PfState, rng: np.random.Generator) -> PfState:
-        index = systematic_resample(state.weights, rng)
+        """Systematic resample to :meth:`particle_count` of the posterior box, roughened."""
+        _, cov = self.estimate(state)
+        sd = np.sqrt(np.clip(np.linalg.eigvalsh(cov), 0.0, None))
+        area = float(np.prod(2.0 * self.extent_sigmas * sd))
+        count = self.particle_count(area, state.cell)
+        index = systematic_resample(state.weights, rng, count)
         particles = state.particles[index]
         if self.roughening > 0:
             spread = np.ptp(particles, axis=0)
             sd = self.roughening * spread * particles.shape[0] ** (-1.0 / 2.0)
             particles = particles + sd * rng.standard_normal(particles.shape)
-        log_weight = np.full(particles.shape[0], -np.log(particles.shape[0]))
+        log_weight = np.full(count, -np.log(count))
+        spacing = float(np.sqrt(area / count))
         return replace(
-            state, particles=particles, log_weight=log_weight, resamples=state.resamples + 1
+            state,
+            particles=particles,
+            log_weight=log_weight,
+            spacing=spacing,
+            resamples=state.resamples + 1,
         )
 
 
@@ -170,15 +244,43 @@ def effective_sample_size(weights: np.ndarray) -> float:
     return float(1.0 / np.sum(np.asarray(weights, dtype=float) ** 2))
 
 
-def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Indices ``(M,)`` of a systematic resample of normalised ``weights`` ``(M,)``.
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count=None) -> np.ndarray:
+    """Indices ``(count,)`` of a systematic resample of normalised ``weights`` ``(M,)``.
 
-    One uniform draw ``u`` places ``M`` pointers at ``(u + j) / M``; particle ``i`` is
-    copied once for each pointer falling in its slice of the cumulative weights, so it
-    appears ``floor(M w_i)`` or ``ceil(M w_i)`` times.
+    One uniform draw ``u`` places ``count`` (default ``M``) pointers at ``(u + j) / count``;
+    particle ``i`` is copied once for each pointer falling in its slice of the cumulative
+    weights, so it appears ``floor(count w_i)`` or ``ceil(count w_i)`` times.
     """
-    m = weights.shape[0]
+    m = weights.shape[0] if count is None else int(count)
     pointers = (rng.random() + np.arange(m)) / m
     cumulative = np.cumsum(weights)
     cumulative[-1] = 1.0
     return np.searchsorted(cumulative, pointers, side="right")
+
+
+FIELD_VARIANCE_SUBSET = 2000
+"""Particles used to estimate the field's variance within one particle's share."""
+
+
+def spread_field_variance(grid: Grid, state: PfState, obs: Observation, rng) -> float:
+    """Field variance within a square of side ``state.spacing``, map units squared.
+
+    ``(mean(d_x^2) + mean(d_y^2)) / 12`` over the measured beams, ``d_x``, ``d_y`` the
+    change of the field read by each beam when the vehicle moves by ``spacing`` along x
+    and along y, at up to :data:`FIELD_VARIANCE_SUBSET` particles drawn with ``rng`` (the
+    PMF's node-field variance with particles for nodes); 0 when no difference is finite.
+    """
+    m = state.particles.shape[0]
+    pick = rng.choice(m, min(m, FIELD_VARIANCE_SUBSET), replace=False)
+    base = state.particles[pick]
+    use = np.isfinite(obs.values)
+    read = [
+        ops.predict_field(grid, base + shift, obs.heading, obs.offsets)[:, use]
+        for shift in ((0.0, 0.0), (state.spacing, 0.0), (0.0, state.spacing))
+    ]
+    total = 0.0
+    for moved in read[1:]:
+        d = moved - read[0]
+        d = d[np.isfinite(d)]
+        total += float(np.mean(d**2)) if d.size else 0.0
+    return total / 12.0

@@ -1,6 +1,6 @@
 r"""The point-mass filter (PMF): Bayes' recursion for the 2-D position on a moving grid.
 
-The posterior of the vehicle position is held as log-weights on an ``N x N`` grid of
+The posterior of the vehicle position is held as log-weights on an ``N0 x N1`` grid of
 position hypotheses (Bergman 1999; Anonsen & Hallingstad for HUGIN). Each sample:
 
 - **predict**: the grid is moved by the INS displacement (exact: only its centre moves)
@@ -25,12 +25,30 @@ log space, could amplify.
 **The grid follows the posterior.** Before each prediction the posterior mean ``m`` and
 covariance ``P`` are computed; the ideal grid is centred on ``m``, its axes along the
 eigenvectors of ``P + q I`` (``q`` the coming process variance) and its half-extent
-``extent_sigmas`` standard deviations along each (spacing ``2 k sigma_i / (N - 1)``, never
-below ``min_spacing_cells`` map cells). The log-density is moved onto the ideal grid by
+``e_i = extent_sigmas`` standard deviations along each (never below what ``points`` nodes
+at ``min_spacing_cells`` map cells span). The log-density is moved onto the ideal grid by
 linear interpolation when the current grid is off by more than ``regrid_ratio`` in node
-spacing (any direction) or by ``regrid_shift`` of its half-extent in position; the zoom is
-limited to ``max_zoom`` per step. A converged posterior thus lives on a small, fine grid;
-a spreading or multi-modal one on a wide, coarse grid.
+spacing or node count (any direction) or by ``regrid_shift`` of its half-extent in
+position; the zoom is limited to ``max_zoom`` per step. The half-extent never leaves out
+a node whose log-weight is within ``support_nats`` of the peak: the moments of a posterior
+with a dominant wrong mode and a small true one (a chance fit of a few samples, 1e-4 of the
+mass) describe the wrong mode alone, and a grid fitted to them would drop the true mode
+for good just before the next samples reject the wrong one by hundreds of nats. A
+converged posterior thus lives on a small, fine grid; a spreading or multi-modal one on
+a wide grid.
+
+**The node count follows the posterior's width.** The grid has ``points`` nodes per axis
+(spacing ``2 e_i / (points - 1)``) as long as that spacing is at most
+``max_spacing_cells`` map cells. A wider posterior -- typically the prior of a large
+initial error, many map cells across -- gets more nodes instead, as many as keep the
+spacing at ``max_spacing_cells`` (up to ``max_points`` per axis, beyond which the spacing
+grows again). The reason: the likelihood of a multibeam swath or of a long track is often
+narrower than one map cell, so a grid coarser than the map samples it at points that may
+all miss the true peak by a sizeable part of it, while a chance fit elsewhere is hit
+squarely; over many samples that bias compounds into a confident wrong fix (a 61-node
+prior grid over a 30 km error on a 1 km map put 2 km between nodes and converged on wrong
+places in a third of the runs). Once the posterior has shrunk the count falls back to
+``points``, so the extra cost is paid only in the first, wide steps.
 
 **Integrity.** :meth:`Pmf.is_ambiguous` is True when more than ``ambiguity_mass`` of the
 posterior lies farther than ``ambiguity_radius_cells`` map cells from the posterior mean
@@ -47,7 +65,7 @@ import numpy as np
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _grid_ops as ops
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.measurement import log_likelihood, predict_measurements
+from geofix.filters.measurement import log_likelihood
 from geofix.maps.grid import Grid
 from geofix.match.base import MatchProblem
 from geofix.match.registry import register
@@ -60,7 +78,7 @@ class PmfState:
     Parameters
     ----------
     log_weight : numpy.ndarray
-        ``(N, N)`` normalised log-weights of the nodes (``logsumexp = 0``).
+        ``(N0, N1)`` normalised log-weights of the nodes (``logsumexp = 0``).
     centre : numpy.ndarray
         ``(2,)`` absolute position of the middle node, metres.
     axes : numpy.ndarray
@@ -89,9 +107,9 @@ class PmfState:
         return self.centre, self.axes, self.spacing
 
     @property
-    def points(self) -> int:
-        """Nodes per axis ``N``."""
-        return self.log_weight.shape[0]
+    def shape(self) -> tuple[int, int]:
+        """Nodes along each grid axis ``(N0, N1)``."""
+        return self.log_weight.shape
 
 
 @register
@@ -102,8 +120,15 @@ class Pmf(RecursiveFilter):
     Parameters
     ----------
     points : int
-        Nodes per grid axis ``N`` (odd, at least 5). 61 resolves a converged Gaussian
-        with 6 nodes per sigma at ``extent_sigmas = 5``.
+        Nodes per grid axis ``N`` (odd, at least 5) of a grid fine enough at that count.
+        61 resolves a converged Gaussian with 6 nodes per sigma at ``extent_sigmas = 5``.
+    max_spacing_cells : float
+        Largest node spacing, map cells, that a wide posterior is given more nodes to
+        keep (0.5: two nodes per cell, so the true position is never more than a quarter
+        of a cell from a node along each axis).
+    max_points : int
+        Most nodes per axis (odd, at least ``points``). 301 keeps a 16-beam update of the
+        full grid near 50 ms; at 0.5 cell spacing it resolves a prior of +-75 cells.
     extent_sigmas : float
         Half-extent of the grid in posterior standard deviations along each principal
         axis (also of the prior grid, in prior sigmas).
@@ -116,7 +141,10 @@ class Pmf(RecursiveFilter):
         ... or when the posterior mean has left the middle by more than this share of the
         grid's half-extent.
     max_zoom : float
-        Largest change of node spacing in one regrid (both ways).
+        Largest change of the grid's half-extent in one regrid (both ways).
+    support_nats : float
+        Nodes whose log-weight is within this of the peak stay on the grid (20: modes
+        down to 2e-9 of the peak survive until the data rule them out).
     discretisation_noise : bool
         Add to the measurement variance the field's variance within one node
         (``mean((delta_field between neighbouring nodes)^2) / 12`` summed over both grid
@@ -131,11 +159,14 @@ class Pmf(RecursiveFilter):
     name: ClassVar[str] = "pmf"
 
     points: int = 61
+    max_spacing_cells: float = 0.5
+    max_points: int = 301
     extent_sigmas: float = 5.0
     min_spacing_cells: float = 0.01
     regrid_ratio: float = 1.4
     regrid_shift: float = 0.2
     max_zoom: float = 4.0
+    support_nats: float = 20.0
     discretisation_noise: bool = True
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
@@ -143,8 +174,10 @@ class Pmf(RecursiveFilter):
     def __post_init__(self) -> None:
         if self.points < 5 or self.points % 2 == 0:
             raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
-        if self.extent_sigmas <= 0 or self.min_spacing_cells <= 0:
-            raise ConfigError("pmf: extent_sigmas and min_spacing_cells must be positive")
+        if self.max_points < self.points or self.max_points % 2 == 0:
+            raise ConfigError(f"pmf: max_points must be odd and >= points, got {self.max_points}")
+        if min(self.extent_sigmas, self.min_spacing_cells, self.max_spacing_cells) <= 0:
+            raise ConfigError("pmf: extent_sigmas and the spacings must be positive")
         if self.regrid_ratio <= 1 or self.max_zoom <= 1:
             raise ConfigError("pmf: regrid_ratio and max_zoom must exceed 1")
 
@@ -161,9 +194,9 @@ class Pmf(RecursiveFilter):
         floor = self.min_spacing_cells * cell * (self.points - 1) / (2 * self.extent_sigmas)
         sigma = max(float(problem.sigma_position[0]), floor)
         centre = np.asarray(problem.indicated[0], dtype=float)
-        spacing = np.full(2, 2.0 * self.extent_sigmas * sigma / (self.points - 1))
-        xy = ops.node_positions(centre, np.eye(2), spacing, self.points)
-        if not problem.grid.contains(xy[..., 0], xy[..., 1]).any():
+        spacing, shape = self.grid_layout(np.full(2, self.extent_sigmas * sigma), cell)
+        xy = ops.node_positions(centre, np.eye(2), spacing, shape)
+        if not np.isfinite(ops.predict_field(problem.grid, xy, 0.0, np.zeros((1, 2)))).any():
             raise MatchError("pmf: the prior grid lies entirely off the map")
         log_weight = ops.gaussian_log_density(xy, centre, sigma**2 * np.eye(2))
         return PmfState(ops.normalise(log_weight), centre, np.eye(2), spacing, cell)
@@ -181,11 +214,11 @@ class Pmf(RecursiveFilter):
         """Add every node's measurement log-likelihood (all beams at once)."""
         if not np.isfinite(obs.values).any():
             return state
-        xy = ops.node_positions(*state.frame, state.points)
-        predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
-        var = obs.noise_var
+        xy = ops.node_positions(*state.frame, state.shape)
+        predicted = ops.predict_field(grid, xy, obs.heading, obs.offsets)
+        var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         if self.discretisation_noise:
-            var += node_field_variance(predicted, obs.values)
+            var = var + node_field_variance(predicted, obs.values)
         log_weight = ops.normalise(state.log_weight + log_likelihood(predicted, obs.values, var))
         return replace(state, log_weight=log_weight, evaluations=state.evaluations + xy.size // 2)
 
@@ -203,10 +236,10 @@ class Pmf(RecursiveFilter):
     def _follow(self, state: PmfState, process_var: float) -> PmfState:
         """Move the log-density onto the ideal grid for the coming prediction if needed."""
         mean, cov = self.estimate(state)
-        frame = self.ideal_frame(state, mean, cov + process_var * np.eye(2))
-        if not self._off_frame(state, frame):
+        frame, shape = self.ideal_frame(state, mean, cov + process_var * np.eye(2))
+        if not self._off_frame(state, frame, shape):
             return state
-        log_weight = ops.resample_grid(state.log_weight, state.frame, frame, (mean, cov))
+        log_weight = ops.resample_grid(state.log_weight, state.frame, frame, (mean, cov), shape)
         centre, axes, spacing = frame
         return replace(
             state,
@@ -218,25 +251,62 @@ class Pmf(RecursiveFilter):
         )
 
     def ideal_frame(self, state: PmfState, mean: np.ndarray, cov: np.ndarray) -> tuple:
-        """``(centre, axes, spacing)`` covering ``+-extent_sigmas`` of ``N(mean, cov)``."""
-        values, axes = np.linalg.eigh(cov)
-        sigma = np.sqrt(np.clip(values, 0.0, None))
-        spacing = 2.0 * self.extent_sigmas * sigma / (state.points - 1)
-        spacing = np.maximum(spacing, self.min_spacing_cells * state.cell)
-        spacing = np.clip(
-            spacing, state.spacing.min() / self.max_zoom, state.spacing.max() * self.max_zoom
-        )
-        return np.asarray(mean, dtype=float), axes, spacing
+        """``((centre, axes, spacing), shape)`` covering ``+-extent_sigmas`` of ``N(mean, cov)``.
 
-    def _off_frame(self, state: PmfState, frame: tuple) -> bool:
-        """True when ``state``'s grid is too far from ``frame`` in spacing or position."""
+        The half-extent along each principal axis is ``extent_sigmas`` standard deviations,
+        and at least the reach of the nodes within ``support_nats`` of the peak
+        (:meth:`support_half_extent`), changed by at most ``max_zoom`` from the current
+        grid's; node spacing and count follow from it (:meth:`grid_layout`).
+        """
+        values, axes = np.linalg.eigh(cov)
+        half = self.extent_sigmas * np.sqrt(np.clip(values, 0.0, None))
+        half = np.maximum(half, self.support_half_extent(state, mean, axes))
+        current = 0.5 * state.spacing * (np.array(state.shape) - 1)
+        half = np.clip(half, current.min() / self.max_zoom, current.max() * self.max_zoom)
+        spacing, shape = self.grid_layout(half, state.cell)
+        return (np.asarray(mean, dtype=float), axes, spacing), shape
+
+    def support_half_extent(self, state: PmfState, centre, axes) -> np.ndarray:
+        """``(2,)`` half-widths, metres, along ``axes`` about ``centre`` that hold every node
+        within ``support_nats`` of the peak log-weight, plus one node spacing."""
+        keep = state.log_weight >= state.log_weight.max() - self.support_nats
+        xy = ops.node_positions(*state.frame, state.shape)[keep]
+        reach = np.abs((xy - centre) @ axes).max(axis=0)
+        return reach + state.spacing.max()
+
+    def grid_layout(self, half_extent: np.ndarray, cell: float) -> tuple:
+        """Node ``spacing`` ``(2,)`` (metres) and ``shape`` ``(N0, N1)`` for a half-extent.
+
+        ``points`` nodes per axis when that spacing is at most ``max_spacing_cells`` map
+        cells (and never below ``min_spacing_cells``); otherwise the odd node count that
+        keeps it there, at most ``max_points``.
+
+        Parameters
+        ----------
+        half_extent : numpy.ndarray
+            ``(2,)`` half-width of the grid along each of its axes, metres.
+        cell : float
+            Map cell size, metres.
+        """
+        base = self.points - 1
+        half = np.maximum(half_extent, 0.5 * base * self.min_spacing_cells * cell)
+        wanted = 2.0 * np.ceil(half / (self.max_spacing_cells * cell))
+        intervals = np.clip(wanted, base, self.max_points - 1)
+        return 2.0 * half / intervals, tuple(int(i) + 1 for i in intervals)
+
+    def _off_frame(self, state: PmfState, frame: tuple, shape: tuple) -> bool:
+        """True when ``state``'s grid is too far from ``frame`` in spacing, size or position."""
         centre, axes, spacing = frame
         basis = state.axes * state.spacing
         stretch = np.linalg.svd(np.linalg.solve(basis, axes * spacing), compute_uv=False)
         if np.max(np.abs(np.log(stretch))) > np.log(self.regrid_ratio):
             return True
+        size = np.log(np.sort(np.array(shape) - 1) / np.sort(np.array(state.shape) - 1))
+        if np.max(np.abs(size)) > np.log(self.regrid_ratio):
+            return True
         shift = np.linalg.solve(basis, centre - state.centre)
-        return bool(np.max(np.abs(shift)) > self.regrid_shift * 0.5 * (state.points - 1))
+        half = 0.5 * (np.array(state.shape) - 1)
+        return bool(np.max(np.abs(shift) / half) > self.regrid_shift)
 
 
 def node_field_variance(predicted: np.ndarray, measured: np.ndarray) -> float:
@@ -245,7 +315,7 @@ def node_field_variance(predicted: np.ndarray, measured: np.ndarray) -> float:
     Parameters
     ----------
     predicted : numpy.ndarray
-        ``(N, N, b)`` field each beam reads from each node (NaN off the map).
+        ``(N0, N1, b)`` field each beam reads from each node (NaN off the map).
     measured : numpy.ndarray
         ``(b,)`` measurement; only the beams it holds count.
 

@@ -241,7 +241,8 @@ def measurement_covariance(obs: Observation, fit_var, corr_length_m, valid) -> n
     Parameters
     ----------
     obs : Observation
-        Beam offsets and the white noise variance (map units^2).
+        Beam offsets and the white noise variance, map units^2 (``(b,)`` per beam, or a
+        scalar for every beam).
     fit_var : numpy.ndarray
         ``(M, b)`` plane-fit residual variances, map units^2 (0 on invalid beams).
     corr_length_m : numpy.ndarray
@@ -324,6 +325,8 @@ class SitanState:
         Smoothed normalised innovation (``1`` at the start; about 1 while consistent).
     updates, skipped, evaluations : int
         Samples used, samples with no usable beam, map reads spent.
+    cell_m : float
+        Map cell size, metres (the unit of the posterior-spread integrity test).
     """
 
     indicated: np.ndarray
@@ -333,6 +336,7 @@ class SitanState:
     updates: int = 0
     skipped: int = 0
     evaluations: int = 0
+    cell_m: float = 0.0
 
 
 @register
@@ -361,6 +365,11 @@ class Sitan(_EkfSettings, RecursiveFilter):
     consistency_bound : float
         The fix is flagged ambiguous when the smoothed normalised innovation exceeds this
         (about 1 for a consistent filter; 3 means the innovations are ~1.7x too large).
+    spread_cells, spread_mass : float
+        It is also flagged when its Gaussian position posterior puts more than
+        ``spread_mass`` of its probability farther than ``spread_cells`` map cells from
+        the estimate (:func:`posterior_too_wide`): on flat terrain the filter stays
+        consistent (its innovations fit the noise) but cannot localise the vehicle.
 
     Notes
     -----
@@ -371,11 +380,19 @@ class Sitan(_EkfSettings, RecursiveFilter):
 
     name: ClassVar[str] = "sitan"
 
+    spread_cells: float = 3.0
+    spread_mass: float = 0.05
+
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> SitanState:
         """Prior at the first sample: zero correction, covariance from the problem's prior."""
         _check_problem(problem, self.name)
         cov = self._prior(problem, float(problem.sigma_position[0]))
-        return SitanState(np.asarray(problem.indicated[0], float), np.zeros(STATE_SIZE), cov)
+        return SitanState(
+            np.asarray(problem.indicated[0], float),
+            np.zeros(STATE_SIZE),
+            cov,
+            cell_m=float(problem.grid.cell_size),
+        )
 
     def predict(self, state: SitanState, motion: Motion, rng: np.random.Generator) -> SitanState:
         """Propagate the error state over one step."""
@@ -407,8 +424,41 @@ class Sitan(_EkfSettings, RecursiveFilter):
         return state.indicated + state.x[:2], state.cov[:2, :2].copy()
 
     def is_ambiguous(self, state: SitanState) -> bool:
-        """True when the smoothed normalised innovation exceeds ``consistency_bound``."""
-        return bool(state.swrs > self.consistency_bound or state.updates == 0)
+        """True when the smoothed normalised innovation exceeds ``consistency_bound``, or
+        the posterior is too wide (:func:`posterior_too_wide`)."""
+        if state.swrs > self.consistency_bound or state.updates == 0:
+            return True
+        radius = self.spread_cells * state.cell_m
+        return posterior_too_wide(state.cov[:2, :2], radius, self.spread_mass)
+
+
+def posterior_too_wide(position_cov: np.ndarray, radius_m: float, mass: float) -> bool:
+    """True when a Gaussian position posterior puts more than ``mass`` beyond ``radius_m``.
+
+    Along the widest axis the share of a 2-D Gaussian beyond ``r`` is at most
+    ``exp(-r^2 / (2 lambda_max))`` (exact for a circular posterior), ``lambda_max`` the
+    largest eigenvalue of the covariance.
+
+    Parameters
+    ----------
+    position_cov : numpy.ndarray
+        ``(2, 2)`` position covariance, m^2.
+    radius_m : float
+        Radius, metres (a few map cells: within it the fix counts as right).
+    mass : float
+        Largest acceptable probability beyond ``radius_m`` (0.05 = 5 %).
+
+    Returns
+    -------
+    bool
+        ``exp(-radius_m^2 / (2 lambda_max)) > mass``.
+    """
+    lam = float(np.linalg.eigvalsh(np.asarray(position_cov, float))[-1])
+    if not np.isfinite(lam):
+        return True
+    if lam <= 0.0:
+        return False
+    return bool(np.exp(-(radius_m**2) / (2.0 * lam)) > mass)
 
 
 # ---------------------------------------------------------------------- the bank

@@ -13,6 +13,7 @@ from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from geofix.errors import ConfigError
 from geofix.maps.grid import Grid
 
 
@@ -39,7 +40,8 @@ class MatchProblem:
     times : numpy.ndarray
         ``(n,)`` sample times, seconds.
     noise_std : float
-        1-sigma of the sensor noise, in map units (as declared by the scenario).
+        1-sigma of the sensor noise, in map units (as declared by the scenario; the nadir
+        value for a multibeam, whose noise grows towards the swath edges).
     sensor : str
         ``"singlebeam"``, ``"multibeam"`` or ``"gravimeter"``.
     map_error_std : float
@@ -48,6 +50,9 @@ class MatchProblem:
     extras : dict
         Optional aiding data a method may use (for example ``"dvl_velocity"`` ``(n, 2)``
         m/s in the local frame).
+    beam_noise_std : numpy.ndarray or None
+        ``(b,)`` 1-sigma of the sensor noise of every beam, map units; None means
+        ``noise_std`` for every beam. Methods that weigh beams use :meth:`beam_noise_var`.
     """
 
     grid: Grid
@@ -61,6 +66,7 @@ class MatchProblem:
     sensor: str = "singlebeam"
     map_error_std: float = 0.0
     extras: dict = field(default_factory=dict)
+    beam_noise_std: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -71,6 +77,28 @@ class MatchProblem:
     def beams(self) -> int:
         """Number of beams ``b``."""
         return self.offsets.shape[0]
+
+    def beam_noise_var(self) -> np.ndarray:
+        """Measurement variance of every beam: sensor noise plus map error.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(b,)`` ``beam_noise_std^2 + map_error_std^2`` (``noise_std`` for every beam
+            when ``beam_noise_std`` is None), map units squared.
+
+        Raises
+        ------
+        ConfigError
+            ``beam_noise_std`` is not ``(b,)`` finite values >= 0 (a problem whose beams
+            were subset without subsetting ``beam_noise_std``, say).
+        """
+        if self.beam_noise_std is None:
+            std = np.full(self.beams, float(self.noise_std))
+        else:
+            check_beam_noise_std(self.beam_noise_std, self.beams, "MatchProblem")
+            std = np.asarray(self.beam_noise_std, dtype=float)
+        return std**2 + float(self.map_error_std) ** 2
 
     def footprint(self, track: np.ndarray, heading: np.ndarray | None = None) -> tuple:
         """Map positions of every beam for a track.
@@ -89,6 +117,21 @@ class MatchProblem:
         """
         psi = self.heading if heading is None else heading
         return footprint_xy(track, psi, self.offsets)
+
+
+def check_beam_noise_std(beam_noise_std, beams: int, who: str) -> None:
+    """Raise unless ``beam_noise_std`` is ``(beams,)`` finite values >= 0 (map units).
+
+    Raises
+    ------
+    ConfigError
+        Wrong shape, a negative or a non-finite value.
+    """
+    std = np.asarray(beam_noise_std, dtype=float)
+    if std.shape != (beams,):
+        raise ConfigError(f"{who}: beam_noise_std has shape {std.shape}, expected ({beams},)")
+    if not (np.isfinite(std).all() and (std >= 0).all()):
+        raise ConfigError(f"{who}: beam_noise_std must be finite and >= 0")
 
 
 def footprint_xy(track: np.ndarray, heading: np.ndarray, offsets: np.ndarray) -> tuple:

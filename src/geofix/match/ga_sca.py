@@ -67,6 +67,7 @@ from geofix.match._affine import (
     window_std,
 )
 from geofix.match.base import Fix, MatchProblem
+from geofix.match.integrity import terrain_integrity
 from geofix.match.registry import register
 
 _VARIANTS = {"A": (True, True), "B": (True, False), "C": (False, True), "D": (False, False)}
@@ -146,6 +147,14 @@ class GaSca:
         (widened to 3 sigma of the fix's covariance when that is larger).
     ambiguity_mass : float
         Relative pseudo-likelihood of the best rival above which the fix is ambiguous.
+    min_terrain_snr : float
+        The fix is also ambiguous when the map's std over the matched footprints (the
+        three sequences) is below this many sensor-noise sigmas: on terrain flatter than
+        the noise the pseudo-likelihood of the rivals is overconfident. 0.6, lower than
+        TERCOM's 1 because the rival test already covers rough multimodal terrain and this
+        is only the backstop for a plain: the flat NAVO survey gives 0.2-0.5 at the fixes,
+        the gentlest benchmark terrain (source 000, terrain A) 0.74-0.97 at fixes mostly
+        within a few cells, all of which a threshold of 1 flagged.
     """
 
     name: ClassVar[str] = "ga-sca"
@@ -173,6 +182,7 @@ class GaSca:
     min_valid_fraction: float = 0.9
     exclusion_cells: float = 10.0
     ambiguity_mass: float = 0.05
+    min_terrain_snr: float = 0.6
 
     def __post_init__(self) -> None:
         if self.variant not in _VARIANTS:
@@ -349,14 +359,14 @@ class GaSca:
         problem = ctx.problem
         track = transform_tracks(problem.indicated, best_x[None], ctx.pivot)[0]
         heading = problem.heading - best_x[3]
-        covariance = translation_covariance(problem, track, heading, ctx.beams)
+        own = translation_covariance(problem, track, heading, ctx.beams)
+        check = terrain_integrity(problem, track, own, self.min_terrain_snr, heading, ctx.beams)
         radius = self.exclusion_cells * problem.grid.cell_size
-        if covariance is not None:
-            radius = max(radius, 3.0 * float(np.sqrt(np.linalg.eigvalsh(covariance)[-1])))
-        ambiguous = self._ambiguous(ctx, best_x, archive, radius)
+        radius = max(radius, 3.0 * float(np.sqrt(np.linalg.eigvalsh(check.covariance)[-1])))
+        ambiguous = check.flat or self._ambiguous(ctx, best_x, archive, radius)
         return Fix(
             track=track,
-            covariance=covariance,
+            covariance=check.covariance,
             cost=best_cost,
             evaluations=int(ctx.counter[0] * ctx.valid.sum()),
             ambiguous=ambiguous,
@@ -374,6 +384,7 @@ class GaSca:
                 "spacing_m": ctx.spacing_m,
                 "beams": ctx.beams.tolist(),
                 "variant": self.variant,
+                "terrain_snr": check.snr,
             },
         )
 

@@ -39,11 +39,17 @@ Integrity (our addition, the source has none): the covariance is the inverse Fis
 information of the final footprints, ``s^2 (sum_i g_i g_i^T)^-1`` with ``g_i`` the map
 gradient (bilinear central differences) at each matched sounding and ``s`` the RMS field
 residual (at least the declared noise); the fix is *ambiguous* when ICP hit its iteration
-cap or its RMS residual exceeds ``ambiguity_rms_factor`` times the declared noise (a
-cloud resting on the wrong terrain cannot fit it). For ``tercom-icp`` the flag is that of
-the ICP stage: the coarse TERCOM's own flag (kept in the diagnostics as
-``coarse_ambiguous``) is raised on most nadir profiles of 10 depths, while the swath
-residual after ICP tells a wrong fix from a right one.
+cap, its RMS residual exceeds ``ambiguity_rms_factor`` times the declared noise (a
+cloud resting on the wrong terrain cannot fit it), or the terrain under the final
+footprints is flatter than ``min_terrain_snr`` noise sigmas
+(:func:`geofix.match.integrity.terrain_snr`: on a plain every placement fits within the
+noise, so the residual cannot tell). The covariance is widened to the Cramér–Rao bound
+of the final footprints with the window's INS prior
+(:func:`geofix.match.integrity.information_covariance`), which stays finite on flat
+terrain. For ``tercom-icp`` the flag is that of the ICP stage: the coarse TERCOM's own
+flag (kept in the diagnostics as ``coarse_ambiguous``) is raised on most nadir profiles
+of 10 depths, while the swath residual and relief after ICP tell a wrong fix from a
+right one.
 """
 
 from __future__ import annotations
@@ -58,6 +64,7 @@ from scipy.spatial import cKDTree
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.grid import Grid
 from geofix.match.base import Fix, MatchProblem
+from geofix.match.integrity import terrain_integrity
 from geofix.match.registry import register
 from geofix.match.rigid import apply_transform, rigid_transform
 from geofix.match.tercom import Tercom
@@ -125,6 +132,10 @@ class Icp:
     ambiguity_rms_factor : float
         Flag the fix ambiguous when the RMS field residual exceeds this many declared
         noise sigmas (noise and map error combined, floored at ``min_depth_std``).
+    min_terrain_snr : float
+        Flag the fix ambiguous when the map's std over the final footprints is below this
+        many sensor-noise sigmas (1, as :class:`geofix.match.tercom.Tercom`: the residual
+        test cannot tell a wrong placement once the relief is within the noise).
     """
 
     name: ClassVar[str] = "icp"
@@ -137,6 +148,7 @@ class Icp:
     max_iterations: int = 100
     tolerance_m: float = 0.01
     ambiguity_rms_factor: float = 3.0
+    min_terrain_snr: float = 1.0
 
     def __post_init__(self) -> None:
         if self.window_sigma <= 0 or self.max_iterations < 1 or self.tolerance_m <= 0:
@@ -222,13 +234,14 @@ class Icp:
     def _fix(self, problem, start, result: IcpResult, extra: dict) -> Fix:
         track = apply_transform(start, result.rotation, result.translation)
         heading = problem.heading - np.arctan2(result.rotation[1, 0], result.rotation[0, 0])
-        covariance = _covariance(problem, track, heading, result.rms_residual)
+        own = _covariance(problem, track, heading, result.rms_residual)
+        check = terrain_integrity(problem, track, own, self.min_terrain_snr, heading)
         limit = self.ambiguity_rms_factor * self._depth_std(problem)
-        ambiguous = (not result.converged) or result.rms_residual > limit
+        ambiguous = (not result.converged) or result.rms_residual > limit or check.flat
         angle = float(np.degrees(np.arctan2(result.rotation[1, 0], result.rotation[0, 0])))
         return Fix(
             track=track,
-            covariance=covariance,
+            covariance=check.covariance,
             cost=result.rms_residual,
             evaluations=result.iterations * result.points,
             ambiguous=bool(ambiguous),
@@ -239,6 +252,7 @@ class Icp:
                 "translation_m": result.translation,
                 "vertical_offset": result.vertical_offset,
                 "rms_residual": result.rms_residual,
+                "terrain_snr": check.snr,
                 "target_points": result.targets,
                 "depth_weight": self.weight(problem),
                 **extra,
@@ -312,11 +326,16 @@ def nadir_problem(problem: MatchProblem) -> MatchProblem:
     Returns
     -------
     MatchProblem
-        ``offsets`` ``(1, 2)`` metres and ``measured`` ``(n, 1)`` of that beam.
+        ``offsets`` ``(1, 2)`` metres, ``measured`` ``(n, 1)`` and ``beam_noise_std``
+        ``(1,)`` (when given) of that beam.
     """
     k = int(np.argmin(np.abs(problem.offsets[:, 0])))
+    noise = problem.beam_noise_std
     return dataclasses.replace(
-        problem, offsets=problem.offsets[k : k + 1], measured=problem.measured[:, k : k + 1]
+        problem,
+        offsets=problem.offsets[k : k + 1],
+        measured=problem.measured[:, k : k + 1],
+        beam_noise_std=None if noise is None else np.asarray(noise, float)[k : k + 1],
     )
 
 

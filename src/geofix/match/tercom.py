@@ -33,6 +33,7 @@ import numpy as np
 
 from geofix.errors import ConfigError, MatchError
 from geofix.match.base import Fix, MatchProblem
+from geofix.match.integrity import terrain_snr
 from geofix.match.registry import register
 
 _METRICS = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3}
@@ -137,33 +138,6 @@ class Tercom:
         cxy = (weights * (dx - mx) * (dy - my)).sum()
         covariance = np.array([[cxx, cxy], [cxy, cyy]])
         return covariance, bool(weights[far].sum() > self.ambiguity_mass)
-
-
-def terrain_snr(problem: MatchProblem, track: np.ndarray) -> float:
-    """Terrain-to-noise ratio along a track: map std over its footprints / sensor noise.
-
-    Parameters
-    ----------
-    problem : MatchProblem
-        Map, headings, beam offsets, measurements (footprints of missing measurements
-        are left out) and ``noise_std`` (map units).
-    track : numpy.ndarray
-        ``(n, 2)`` vehicle positions, metres.
-
-    Returns
-    -------
-    float
-        ``std(map at the footprints) / noise_std`` (dimensionless); ``inf`` without noise,
-        0 when no footprint is on valid data.
-    """
-    fx, fy = problem.footprint(track)
-    values = problem.grid.sample(fx, fy)[np.isfinite(problem.measured)]
-    values = values[np.isfinite(values)]
-    if values.size < 2:
-        return 0.0
-    if problem.noise_std <= 0:
-        return float("inf")
-    return float(np.std(values) / problem.noise_std)
 
 
 def tercom_cost_surface(

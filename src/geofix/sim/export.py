@@ -10,7 +10,8 @@ other tools can be run on the very same data:
   indicated_heading, times, sigma_position`` ``(trial, sample)`` and ``measured``
   ``(trial, sample, beam)``;
 - the sensor geometry ``offset_across, offset_along (beam)``, the legs ``leg_start
-  (leg)`` and per trial ``noise_std, map_error_std, trial_index``;
+  (leg)`` and per trial ``noise_std, map_error_std, trial_index``; the per-beam noise
+  ``beam_noise_std (trial, beam)`` when any trial has one (NaN rows for trials without);
 - every array of ``Trial.extras`` (``dvl_velocity``, ``true_velocity``,
   ``unlagged_measured``, ...) as ``extra_<key>[_x|_y]`` and scalar extras per trial, each
   tagged with attributes ``extra_key`` / ``extra_component`` so the reader restores them;
@@ -143,7 +144,21 @@ def _trial_vars(trials: list[Trial]) -> dict:
     for name, what in (("noise_std", "sensor noise 1-sigma"), ("map_error_std", "map error")):
         out[name] = ("trial", [float(getattr(t, name)) for t in trials], _attrs(what, "map"))
     out["trial_index"] = ("trial", [int(t.index) for t in trials], _attrs("trial number", "1"))
+    out.update(_beam_noise_std_vars(trials))
     return out
+
+
+def _beam_noise_std_vars(trials: list[Trial]) -> dict:
+    """``beam_noise_std (trial, beam)``, NaN rows for trials without; none if no trial has it."""
+    if all(t.beam_noise_std is None for t in trials):
+        return {}
+    beams = trials[0].offsets.shape[0]
+    rows = [
+        np.full(beams, np.nan) if t.beam_noise_std is None else np.asarray(t.beam_noise_std, float)
+        for t in trials
+    ]
+    what = _attrs("sensor noise 1-sigma of every beam", "map")
+    return {"beam_noise_std": (("trial", "beam"), np.stack(rows), what)}
 
 
 def _extra_vars(trials: list[Trial]) -> dict:
@@ -257,7 +272,15 @@ def _trial_from(ds, k: int) -> Trial:
         map_error_std=float(ds["map_error_std"].values[k]),
         index=int(ds["trial_index"].values[k]),
         extras=_extras_from(ds, k),
+        beam_noise_std=_beam_noise_std_from(ds, k),
     )
+
+
+def _beam_noise_std_from(ds, k: int) -> np.ndarray | None:
+    if "beam_noise_std" not in ds:
+        return None
+    row = np.asarray(ds["beam_noise_std"].values[k], dtype=float)
+    return None if np.isnan(row).all() else row
 
 
 def _extras_from(ds, k: int) -> dict:

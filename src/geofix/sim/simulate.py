@@ -19,7 +19,7 @@ from geofix.match.base import footprint_xy
 from geofix.nav.dvl import simulate_dvl
 from geofix.nav.ins import position_sigma, simulate_ins
 from geofix.nav.trajectory import TrueTrajectory, true_trajectory
-from geofix.sensors.echosounder import measure_with_unlagged, sensor_offsets
+from geofix.sensors.echosounder import beam_noise_std, measure_with_unlagged, sensor_offsets
 from geofix.sim.scenario import Scenario
 from geofix.sim.trial import Trial
 
@@ -148,10 +148,15 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
     -------
     Trial
         ``noise_std`` is ``hypot(sensor.noise_std, sensor.map_error_std)`` (nadir value
-        for a multibeam); ``sigma_position`` is :func:`geofix.nav.ins.position_sigma`
-        with the nominal distance ``speed * t``. ``extras`` holds ``"true_velocity"``
-        ``(n, 2)`` m/s, ``"dvl_velocity"`` ``(n, 2)`` m/s with a DVL, and for a gravimeter
-        ``"unlagged_measured"`` ``(n, 1)`` and ``"lag_s"``.
+        for a multibeam) and ``beam_noise_std`` ``(b,)`` likewise
+        ``hypot(beam_noise_std(offsets, sensor), sensor.map_error_std)`` (every beam's
+        noise, growing towards a multibeam's swath edges; see
+        :func:`geofix.sensors.echosounder.beam_noise_std`); ``map_error_std`` is left at 0
+        as both already hold the map error. ``sigma_position`` is
+        :func:`geofix.nav.ins.position_sigma` with the nominal distance ``speed * t``.
+        ``extras`` holds ``"true_velocity"`` ``(n, 2)`` m/s, ``"dvl_velocity"`` ``(n, 2)``
+        m/s with a DVL, and for a gravimeter ``"unlagged_measured"`` ``(n, 1)`` and
+        ``"lag_s"``.
 
     Raises
     ------
@@ -186,6 +191,7 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
         ),
         leg_starts=true.leg_starts,
         noise_std=float(np.hypot(sensor.noise_std, sensor.map_error_std)),
+        beam_noise_std=np.hypot(beam_noise_std(offsets, sensor), sensor.map_error_std),
         sensor=sensor.type,
         index=int(index),
         extras=_extras(scenario, true, unlagged, dvl_rng),

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geofix.maps.grid import Grid
-from geofix.match.base import MatchProblem
+from geofix.match.base import MatchProblem, check_beam_noise_std
 
 _TRUTH_PREFIXES = ("true_", "unlagged_")
 
@@ -38,7 +38,7 @@ class Trial:
     leg_starts : tuple of int
         Index of the first sample of every leg (``(0,)`` for a single leg).
     noise_std : float
-        Sensor noise 1-sigma, map units.
+        Sensor noise 1-sigma, map units (the nadir value for a multibeam).
     sensor : str
         Sensor type.
     map_error_std : float
@@ -49,6 +49,9 @@ class Trial:
         Aiding data (``"dvl_velocity"`` ``(n, 2)`` m/s, ``"unlagged_measured"`` before the
         gravimeter lag, ``"lag_s"``) and truth kept for diagnostics (keys starting with
         ``"true_"`` or ``"unlagged_"``, never handed to a method).
+    beam_noise_std : numpy.ndarray or None
+        ``(b,)`` noise 1-sigma of every beam, map units, on the same footing as
+        ``noise_std`` (None: ``noise_std`` for every beam). Handed on to every problem.
     """
 
     truth: np.ndarray
@@ -65,6 +68,11 @@ class Trial:
     map_error_std: float = 0.0
     index: int = 0
     extras: dict = field(default_factory=dict)
+    beam_noise_std: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.beam_noise_std is not None:
+            check_beam_noise_std(self.beam_noise_std, self.offsets.shape[0], "Trial")
 
     @property
     def n(self) -> int:
@@ -100,4 +108,5 @@ class Trial:
             sensor=self.sensor,
             map_error_std=self.map_error_std,
             extras=extras,
+            beam_noise_std=self.beam_noise_std,
         )
