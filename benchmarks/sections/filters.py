@@ -156,10 +156,13 @@ def _rms(errors: np.ndarray) -> float:
 def _intro(quick: bool) -> str:
     trials = ", ".join(f"{QUICK_TRIALS if quick else t}" for *_, t, _ in RUNS)
     return f"""The references that serious users measure against (ALGORITHMS.md, "Beyond the
-sources"): the point-mass filter `pmf` (a {61}×{61} grid that follows the posterior, log-space
-Bayes recursion, separable convolution with the INS-error kernel) and the bootstrap
-particle filter `pf` (5000 particles, systematic resampling at ESS < M/2, Gordon's
-roughening). Both use the one measurement model of `geofix.filters.measurement`. They run on
+sources"): the point-mass filter `pmf` (a grid of 61×61 nodes that follows the posterior
+and grows, up to 301 per axis, while the posterior is wider than 30 map cells, so that
+nodes stay within half a cell; log-space Bayes recursion, separable convolution with the
+INS-error kernel) and the bootstrap particle filter `pf` (5000 particles, or more while
+the cloud is wide: about one per half cell, up to 200 000; stratified prior, systematic
+resampling at ESS < M/2, Gordon's roughening). Both use the one measurement model of
+`geofix.filters.measurement`. They run on
 the bundled real-map scenarios of the source issues (scenario files unchanged, results stored
 apart as `filters_*`; {trials} seeded trials respectively), beside the batch methods of those
 sources (run leg by leg with an INS reset to each fix) and the SITAN bank where it applies.
@@ -176,7 +179,7 @@ than 5 % of the posterior farther than 3 map cells from the fix.
 
 def _scenario_table(label: str, trials: int, stats: dict, crlb: float | None) -> str:
     header = ["method", "end RMS (m)", "RMS / CRLB", "mean (m)", "95 % (m)", "false fix (%)"]
-    header += ["ambiguous (%)", "time/trial (s)", "failures"]
+    header += ["ambiguous (%)", "time/trial (ms)", "failures"]
     rows = []
     for spec, s in stats.items():
         ratio = s["rms"] / crlb if crlb else None
@@ -189,7 +192,7 @@ def _scenario_table(label: str, trials: int, stats: dict, crlb: float | None) ->
                 fmt(s["p95"], 1),
                 fmt(100 * s["false_fix"], 0),
                 fmt(100 * s["ambiguous"], 0),
-                fmt(s["time"], 3),
+                fmt(s["time"] * 1e3, 1),
                 s["failures"],
             ]
         )
@@ -267,32 +270,23 @@ def _verdict(label, stats, crlb, peers, batch) -> str:
 def _discussion() -> str:
     return f"""
 Notes. The PMF's grid starts at ±5 prior σ and follows the posterior (re-centred, rotated to
-its principal axes, spacing 1/6 of a posterior σ but at least 1 % of a map cell), so once
-converged it resolves the posterior whatever its size; its likelihood is flattened by the
-field's variance within one node while the grid is coarse, which keeps a coarse grid from
-aliasing onto a wrong, narrow peak. The measurement variance handed to the filters is one
-number per sensor (`noise_std² + map_error_std²`): where a scenario's multibeam noise grows
-towards the swath edges (source 001, `edge_noise_factor: 2`) the filters weigh the outer
-beams as if they were as good as nadir, while the CRLB uses the true per-beam noise; that
-costs efficiency there (source 001: the PMF's RMS is 1.2× the bound while TERCOM-ICP, a
-rigid fit of whole 10-sample legs, gets closer to it). The process noise of both filters is
-the growth of the INS prior variance between samples treated as white, a conservative
-stand-in for an INS error that is in truth strongly correlated in time.
+its principal axes, spacing 1/6 of a posterior σ but at least 1 % of a map cell, never more
+than half a map cell while the node budget allows, and never dropping a node within 20
+nats of the peak), so it neither aliases a wide prior onto a wrong, narrow peak nor loses a
+second mode while the first looks better; its likelihood is flattened by the field's
+variance within one node while the grid is coarse. The measurement variance is per beam
+(sensor noise growing to the swath edges, plus map error), the same the CRLB uses. The
+process noise of both filters is the growth of the INS prior variance between samples
+treated as white, a conservative stand-in for an INS error that is in truth strongly
+correlated in time; that is also why a filter can end *below* the recursive bound, which
+assumes the same white model (see the integrity section).
 
-Where it fails: **source 002** (a 30 km prior error, σ₀ = 12.4 km per axis, on a 1 km map
-with a 16-beam swath whose likelihood is narrower than one cell). The prior grid of 61×61
-nodes spans ±62 km, so its nodes are 2 km apart: the node nearest the truth reads terrain up
-to a kilometre away, and after the first two samples the posterior mass within 3 km of the
-truth is already below 1e-5 on the trials that go wrong; the grid then converges, confidently,
-on a wrong patch (5 of 12 trials, all unflagged: the false fixes in the table). The
-flattening by the field's variance within a node is not enough at that ratio of node to
-likelihood width. A finer prior grid fixes it: with `pmf:points=241` (nodes 0.3-0.5 km
-apart) two of the failing trials (6 and 7) keep 11 % and 45 % of the mass near the truth
-after the first sample and end 43 m and 1 m off; but 241×241 nodes on every step cost
-~16× the time, so the defaults keep 61 and this scenario is reported as a failure. The
-right remedy, not done here, is a grid whose node count grows while the posterior is wide
-(spacing capped at a fraction of a map cell) and shrinks back once it has converged. The PF
-fails there for the same reason with 5000 particles (about 2 km apart over the prior), and
-so does the SITAN bank; TERCOM, matching all 250 samples at once, does not.
+The hard case is **source 002** (a 30 km prior error, σ₀ = 12.4 km per axis, on a 1 km map
+with a 16-beam swath whose likelihood is narrower than one cell). A fixed 61×61 prior grid
+spans ±62 km with nodes 2 km apart and converged confidently on a wrong patch in 5 of 12
+trials; with the grid sized to the map cell (up to 301×301 nodes while the posterior is
+wide) and the support rule, every trial converges. The cost is time: the PMF and PF spend
+most of a trial on the first wide steps. The Stone Soup comparison uses a fixed grid and
+particle count of the same size on both sides.
 Results are stored under `{OUT.name}/filters_*`.
 """
