@@ -23,44 +23,17 @@ from geofix.match.integrity import (
     terrain_snr,
 )
 from geofix.match.registry import available_methods, parse_method_spec
-from geofix.sim.scenario import scenario_from_dict
+from geofix.sim.scenario import builtin_scenario_path, load_scenario
 from geofix.sim.simulate import prepare_map, simulate_trial
 
-# Lower-left cell centre of the survey in its own UTM coordinates, metres.
-_NAVO_X0, _NAVO_Y0 = 620153.872885373, 7243549.911727688
-#: A fully valid 1.6 km x 1.2 km part of the survey (cells 300..1100 x 400..1000).
-NAVO_REGION = [_NAVO_X0 + 600, _NAVO_X0 + 2200, _NAVO_Y0 + 800, _NAVO_Y0 + 2000]
 TRIALS = 4
 SENSORS = ("singlebeam", "multibeam")
 
 
 def navo_scenario(sensor: str, trials: int = TRIALS, seed: int = 8):
-    """A short AUV run on the flat survey: 2 m/s, a sounding every 5 s, 0.2 m noise."""
-    spec = {"type": sensor, "noise_std": 0.2}
-    if sensor == "multibeam":
-        spec.update(beams=7, swath_width_m=100.0)
-    return scenario_from_dict(
-        {
-            "name": f"navo-flat-{sensor}",
-            "map": {"path": "builtin:navo_flat", "region": NAVO_REGION},
-            "track": {
-                "start_cell": [300, 300],
-                "start_jitter_m": 100,
-                "heading_deg": 90,
-                "speed_m_s": 2,
-                "interval_s": 5,
-                "samples": 30,
-            },
-            "sensor": spec,
-            "ins": {
-                "initial_error_m": [40, -30],
-                "initial_error_std_m": 10,
-                "velocity_error_m_s": 0.02,
-            },
-            "trials": trials,
-            "seed": seed,
-        }
-    )
+    """The bundled flat-survey mission (``navo_flat_<sensor>.yaml``), ``trials`` trials."""
+    scen = load_scenario(builtin_scenario_path(f"navo_flat_{sensor}"))
+    return scen.model_copy(update={"trials": trials, "seed": seed})
 
 
 @pytest.fixture(scope="module")

@@ -14,10 +14,6 @@ ORDER = 90
 BOUND_METHODS = ("tercom", "pmf", "pf")
 BOUND_TRIALS, QUICK_BOUND_TRIALS = 30, 2
 NAVO_TRIALS, QUICK_NAVO_TRIALS = 16, 2
-# Lower-left cell centre of the NAVO survey in its own UTM coordinates, metres, and a fully
-# valid 1.6 km x 1.2 km part of it (cells 300..1100 x 400..1000).
-NAVO_X0, NAVO_Y0 = 620153.872885373, 7243549.911727688
-NAVO_REGION = [NAVO_X0 + 600, NAVO_X0 + 2200, NAVO_Y0 + 800, NAVO_Y0 + 2000]
 
 
 def build(quick: bool) -> str:
@@ -129,34 +125,10 @@ def _bounds_part(trials: int, quick: bool) -> str:
 
 # ---------------------------------------------------------------------- flat survey
 def navo_scenario(sensor: str):
-    """The flat-survey mission of ``tests/test_integrity.py``, with more trials."""
-    from geofix.sim.scenario import scenario_from_dict
+    """The bundled flat-survey mission (``navo_flat_<sensor>.yaml``) of the integrity test."""
+    from geofix.sim.scenario import builtin_scenario_path, load_scenario
 
-    spec = {"type": sensor, "noise_std": 0.2}
-    if sensor == "multibeam":
-        spec.update(beams=7, swath_width_m=100.0)
-    return scenario_from_dict(
-        {
-            "name": f"integrity_navo_flat_{sensor}",
-            "map": {"path": "builtin:navo_flat", "region": NAVO_REGION},
-            "track": {
-                "start_cell": [300, 300],
-                "start_jitter_m": 100,
-                "heading_deg": 90,
-                "speed_m_s": 2,
-                "interval_s": 5,
-                "samples": 30,
-            },
-            "sensor": spec,
-            "ins": {
-                "initial_error_m": [40, -30],
-                "initial_error_std_m": 10,
-                "velocity_error_m_s": 0.02,
-            },
-            "trials": 16,
-            "seed": 8,
-        }
-    )
+    return load_scenario(builtin_scenario_path(f"navo_flat_{sensor}"))
 
 
 def _navo_part(trials: int) -> str:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import sys
-from importlib import resources
 from pathlib import Path
 from typing import Annotated
 
@@ -206,10 +205,9 @@ def export(
 
 def builtin_scenario(name: str) -> Path:
     """Path of a scenario shipped inside the package."""
-    path = Path(str(resources.files("geofix") / "scenarios" / f"{name}.yaml"))
-    if not path.exists():
-        raise GeofixError(f"no bundled scenario {name!r}")
-    return path
+    from geofix.sim.scenario import builtin_scenario_path
+
+    return builtin_scenario_path(name)
 
 
 def _print_summary(result) -> None:

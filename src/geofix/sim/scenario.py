@@ -152,6 +152,17 @@ def scenario_from_dict(
         raise ConfigError(f"{source}: {_describe(exc)}") from None
 
 
+def builtin_scenario_path(name: str) -> Path:
+    """Path of a scenario shipped with geofix (``src/geofix/scenarios/NAME.yaml``)."""
+    from importlib import resources
+
+    path = Path(str(resources.files("geofix") / "scenarios" / f"{name}.yaml"))
+    if not path.exists():
+        known = sorted(p.stem for p in path.parent.glob("*.yaml"))
+        raise ConfigError(f"no bundled scenario {name!r} (bundled: {', '.join(known)})")
+    return path
+
+
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario YAML file.
 
