@@ -281,8 +281,9 @@ def test_a_small_far_mode_stays_on_the_grid():
     assert (0.5 * spacing * (np.array(shape) - 1)).max() < 1000.0  # the moments alone
 
 
-def test_fast_field_prediction_matches_the_measurement_model():
+def test_field_prediction_matches_bilinear_sampling_at_the_footprints():
     from geofix.filters.measurement import predict_measurements
+    from geofix.match.base import footprint_xy
 
     rng = np.random.default_rng(8)
     grid = fractal_terrain((60, 50), 10.0, rng=rng, std=5.0)
@@ -291,8 +292,9 @@ def test_fast_field_prediction_matches_the_measurement_model():
     grid = grid.with_values(values)
     positions = rng.uniform(-50.0, 650.0, (7, 9, 2))  # some off the map
     offsets = rng.normal(0.0, 30.0, (5, 2))
-    want = predict_measurements(grid, positions, 0.7, offsets)
-    got = ops.predict_field(grid, positions, 0.7, offsets)
+    fx, fy = footprint_xy(positions.reshape(-1, 1, 2), np.full((63, 1), 0.7), offsets)
+    want = grid.sample(fx, fy).reshape(7, 9, 5)
+    got = predict_measurements(grid, positions, 0.7, offsets)
     assert got.shape == (7, 9, 5)
     np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
     assert np.isnan(want).any() and np.isfinite(want).any()

@@ -14,9 +14,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import correlate1d, map_coordinates
 
-from geofix.maps.grid import Grid
-from geofix.match.base import footprint_xy
-
 THREE_TAP_MAX_SIGMA = 0.8
 """Largest kernel sigma (in nodes) for the three-tap kernel; wider ones are sampled Gaussians
 (at 0.8 node both have the exact variance ``sigma^2`` to better than 1e-5)."""
@@ -37,39 +34,6 @@ def node_positions(centre, axes, spacing, shape) -> np.ndarray:
     """Absolute ``(x, y)`` of every node, metres, shape ``(N0, N1, 2)``."""
     u, v = node_offsets(shape, spacing)
     return centre + u[:, None, None] * axes[:, 0] + v[None, :, None] * axes[:, 1]
-
-
-def predict_field(grid: Grid, positions, heading: float, offsets) -> np.ndarray:
-    """The field every beam reads from every position, ``(..., b)``; NaN off the map.
-
-    The same model as :func:`geofix.filters.measurement.predict_measurements` (bilinear
-    read of the map at each beam's footprint, NaN where any of the four cells is NaN or
-    off the map), computed by ``scipy.ndimage.map_coordinates`` -- about three times
-    faster on the hundreds of thousands of footprints of a wide grid or particle set.
-
-    Parameters
-    ----------
-    grid : Grid
-        The map.
-    positions : numpy.ndarray
-        ``(..., 2)`` hypothesised vehicle positions, metres.
-    heading : float
-        Heading, radians clockwise from north.
-    offsets : numpy.ndarray
-        ``(b, 2)`` body-frame beam offsets, metres.
-    """
-    positions = np.asarray(positions, dtype=float)
-    offsets = np.asarray(offsets, dtype=float)
-    ox, oy = footprint_xy(np.zeros(2), np.asarray(heading, dtype=float), offsets)
-    col, row = grid.xy_to_cell(positions[..., 0].ravel(), positions[..., 1].ravel())
-    coords = np.empty((2, col.size, offsets.shape[0]))
-    np.add(row[:, None], oy / grid.dy, out=coords[0])
-    np.add(col[:, None], ox / grid.dx, out=coords[1])
-    values = np.asarray(grid.values, dtype=float)
-    out = map_coordinates(
-        values, coords.reshape(2, -1), order=1, mode="constant", cval=np.nan, prefilter=False
-    )
-    return out.reshape(*positions.shape[:-1], offsets.shape[0])
 
 
 def normalise(log_weight: np.ndarray) -> np.ndarray:

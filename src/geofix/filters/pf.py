@@ -49,9 +49,8 @@ import numpy as np
 from scipy.special import logsumexp
 
 from geofix.errors import ConfigError, MatchError
-from geofix.filters import _grid_ops as ops
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.measurement import log_likelihood
+from geofix.filters.measurement import log_likelihood, predict_measurements
 from geofix.maps.grid import Grid
 from geofix.match.base import MatchProblem
 from geofix.match.registry import register
@@ -166,7 +165,9 @@ class Pf(RecursiveFilter):
         corner = (np.arange(per_axis) - 0.5 * per_axis) * h
         lattice = np.stack(np.meshgrid(corner, corner, indexing="ij"), axis=-1).reshape(-1, 2)
         particles = start + lattice + h * rng.random(lattice.shape)
-        if not np.isfinite(ops.predict_field(problem.grid, particles, 0.0, np.zeros((1, 2)))).any():
+        if not np.isfinite(
+            predict_measurements(problem.grid, particles, 0.0, np.zeros((1, 2)))
+        ).any():
             raise MatchError("pf: the prior particles lie entirely off the map")
         log_weight = -0.5 * np.sum((particles - start) ** 2, axis=1) / sigma**2
         return PfState(particles, log_weight - logsumexp(log_weight), cell, spacing=h)
@@ -192,7 +193,7 @@ class Pf(RecursiveFilter):
         """Add every particle's measurement log-likelihood (all beams at once)."""
         if not np.isfinite(obs.values).any():
             return state
-        predicted = ops.predict_field(grid, state.particles, obs.heading, obs.offsets)
+        predicted = predict_measurements(grid, state.particles, obs.heading, obs.offsets)
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         if self.discretisation_noise and state.spacing > 0:
             var = var + spread_field_variance(grid, state, obs, rng)
@@ -275,7 +276,7 @@ def spread_field_variance(grid: Grid, state: PfState, obs: Observation, rng) -> 
     base = state.particles[pick]
     use = np.isfinite(obs.values)
     read = [
-        ops.predict_field(grid, base + shift, obs.heading, obs.offsets)[:, use]
+        predict_measurements(grid, base + shift, obs.heading, obs.offsets)[:, use]
         for shift in ((0.0, 0.0), (state.spacing, 0.0), (0.0, state.spacing))
     ]
     total = 0.0

@@ -65,7 +65,7 @@ import numpy as np
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _grid_ops as ops
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.measurement import log_likelihood
+from geofix.filters.measurement import log_likelihood, predict_measurements
 from geofix.maps.grid import Grid
 from geofix.match.base import MatchProblem
 from geofix.match.registry import register
@@ -196,7 +196,7 @@ class Pmf(RecursiveFilter):
         centre = np.asarray(problem.indicated[0], dtype=float)
         spacing, shape = self.grid_layout(np.full(2, self.extent_sigmas * sigma), cell)
         xy = ops.node_positions(centre, np.eye(2), spacing, shape)
-        if not np.isfinite(ops.predict_field(problem.grid, xy, 0.0, np.zeros((1, 2)))).any():
+        if not np.isfinite(predict_measurements(problem.grid, xy, 0.0, np.zeros((1, 2)))).any():
             raise MatchError("pmf: the prior grid lies entirely off the map")
         log_weight = ops.gaussian_log_density(xy, centre, sigma**2 * np.eye(2))
         return PmfState(ops.normalise(log_weight), centre, np.eye(2), spacing, cell)
@@ -215,7 +215,7 @@ class Pmf(RecursiveFilter):
         if not np.isfinite(obs.values).any():
             return state
         xy = ops.node_positions(*state.frame, state.shape)
-        predicted = ops.predict_field(grid, xy, obs.heading, obs.offsets)
+        predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         if self.discretisation_noise:
             var = var + node_field_variance(predicted, obs.values)

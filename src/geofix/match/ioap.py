@@ -49,6 +49,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
+import numba
 import numpy as np
 
 from geofix.errors import ConfigError, MatchError
@@ -394,8 +395,9 @@ def translated_msd_scores(
     """MSD of the indicated track translated to end on each grid node of ``ends``.
 
     The same scores as :func:`msd_scores` on translated tracks, computed on integer cell
-    indices: the footprint's offset from the indicated end is rounded to cells once, then
-    every candidate adds its node's indices (no per-candidate interpolation).
+    indices by a compiled kernel (parallel over candidates): the footprint's offset from
+    the indicated end is rounded to cells once, then every candidate adds its node's
+    indices. :func:`translated_msd_scores_numpy` is the vectorised reference.
 
     Parameters
     ----------
@@ -411,17 +413,36 @@ def translated_msd_scores(
     numpy.ndarray
         ``(k,)`` MSD in squared map units; NaN when discarded.
     """
+    rel_col, rel_row = _footprint_cells(problem)
+    node_col, node_row = _node_cells(problem.grid, ends)
+    measured = problem.measured.reshape(-1)
+    keep = np.isfinite(measured)  # a missing measurement adds nothing to any candidate
+    return _translated_msd_kernel(
+        np.ascontiguousarray(problem.grid.values),
+        np.ascontiguousarray(rel_col.reshape(-1)[keep]),
+        np.ascontiguousarray(rel_row.reshape(-1)[keep]),
+        np.ascontiguousarray(measured[keep]),
+        np.ascontiguousarray(node_col),
+        np.ascontiguousarray(node_row),
+        float(min_valid_fraction * keep.sum()),
+    )
+
+
+def translated_msd_scores_numpy(
+    problem: MatchProblem, ends: np.ndarray, min_valid_fraction: float = 0.9
+) -> np.ndarray:
+    """Vectorised-numpy reference of :func:`translated_msd_scores` (same arguments, units).
+
+    Gathers the ``(k, n, b)`` nearest-node map values from the window the candidates
+    cover, then scores them with the shared MSD rule; equal to the kernel's scores up to
+    the order of summation (NaN for the same candidates).
+    """
     grid = problem.grid
-    fx, fy = problem.footprint(problem.indicated)
-    end = problem.indicated[-1]
-    rel_col = np.rint((fx - end[0]) / grid.dx).astype(np.intp)
-    rel_row = np.rint((fy - end[1]) / grid.dy).astype(np.intp)
-    node_col, node_row = grid.xy_to_cell(ends[:, 0], ends[:, 1])
+    rel_col, rel_row = _footprint_cells(problem)
+    node_col, node_row = _node_cells(grid, ends)
     ny, nx = grid.shape
-    node_col = np.rint(node_col).astype(np.intp)[:, None, None]
-    node_row = np.rint(node_row).astype(np.intp)[:, None, None]
-    col = rel_col[None] + node_col
-    row = rel_row[None] + node_row
+    col = rel_col[None] + node_col[:, None, None]
+    row = rel_row[None] + node_row[:, None, None]
     inside = (col >= 0) & (col < nx) & (row >= 0) & (row < ny)
     if not inside.any():
         return np.full(ends.shape[0], np.nan)
@@ -433,6 +454,60 @@ def translated_msd_scores(
     mapped = window.ravel()[flat]
     mapped[~inside] = np.nan
     return _msd(mapped, problem.measured, min_valid_fraction)
+
+
+def _footprint_cells(problem: MatchProblem) -> tuple[np.ndarray, np.ndarray]:
+    """``(n, b)`` integer cell offsets ``(col, row)`` of the footprint from the indicated end."""
+    grid = problem.grid
+    fx, fy = problem.footprint(problem.indicated)
+    end = problem.indicated[-1]
+    rel_col = np.rint((fx - end[0]) / grid.dx).astype(np.int64)
+    rel_row = np.rint((fy - end[1]) / grid.dy).astype(np.int64)
+    return rel_col, rel_row
+
+
+def _node_cells(grid: Grid, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(k,)`` integer ``(col, row)`` of the nodes nearest to ``ends`` ``(k, 2)``, metres."""
+    col, row = grid.xy_to_cell(ends[:, 0], ends[:, 1])
+    return np.rint(col).astype(np.int64), np.rint(row).astype(np.int64)
+
+
+_INDEX = numba.types.Array(numba.int64, 1, "C")
+_TRANSLATED_SIGNATURE = numba.float64[:](
+    numba.types.Array(numba.float64, 2, "C", readonly=True),  # the Grid's read-only values
+    _INDEX,
+    _INDEX,
+    numba.types.Array(numba.float64, 1, "C"),
+    _INDEX,
+    _INDEX,
+    numba.float64,
+)
+
+
+# Compiled eagerly (and cached on disk) so that no match call pays for compilation.
+@numba.njit(_TRANSLATED_SIGNATURE, parallel=True, cache=True)
+def _translated_msd_kernel(
+    values, rel_col, rel_row, h, node_col, node_row, needed
+):  # pragma: no cover
+    """``(k,)`` MSD of ``h`` against the nearest-node values at ``node + rel`` (see numpy)."""
+    ny, nx = values.shape
+    out = np.full(node_col.shape[0], np.nan)
+    for k in numba.prange(node_col.shape[0]):
+        acc = 0.0
+        valid = 0
+        for i in range(h.shape[0]):
+            c = rel_col[i] + node_col[k]
+            r = rel_row[i] + node_row[k]
+            if c < 0 or r < 0 or c >= nx or r >= ny:
+                continue
+            d = values[r, c] - h[i]
+            if not np.isfinite(d):
+                continue
+            acc += d * d
+            valid += 1
+        if valid > 0 and valid >= needed:
+            out[k] = acc / valid
+    return out
 
 
 def _msd(mapped: np.ndarray, measured: np.ndarray, min_valid_fraction: float) -> np.ndarray:
