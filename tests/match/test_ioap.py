@@ -17,6 +17,7 @@ from geofix.match.ioap import (
     snap_to_nodes,
     spmp_layout,
     translated_msd_scores,
+    translated_msd_scores_numpy,
 )
 from geofix.match.registry import parse_method_spec
 
@@ -229,3 +230,33 @@ def test_translated_scores_equal_generic_nearest_node_scores(rng):
     fast = translated_msd_scores(problem, ends)
     np.testing.assert_allclose(fast, msd_scores(problem, tracks), rtol=1e-12)
     assert np.isnan(fast[-1])
+
+
+def test_kernel_scores_equal_numpy_reference(rng):
+    # a no-data patch in the map, three beams, missing measurements, candidates partly and
+    # wholly off the map: the compiled kernel and the numpy path agree on every candidate
+    base = _smooth_grid(rng)
+    values = base.values.copy()
+    values[40:55, 60:80] = np.nan
+    grid = Grid(values, x0=0.0, y0=0.0, dx=CELL, dy=CELL, kind="gravity", units="mGal")
+    truth = _line((4000.0, 3000.0))
+    offsets = np.array([[-150.0, 0.0], [0.0, 0.0], [150.0, 40.0]])
+    problem = dataclasses.replace(_problem(grid, truth, np.array([-430.0, 260.0])), offsets=offsets)
+    fx, fy = problem.footprint(truth)
+    measured = grid.sample(fx, fy, method="nearest") + rng.normal(0.0, 1.0, fx.shape)
+    measured[::5, 1] = np.nan
+    measured[7] = np.nan
+    problem = dataclasses.replace(problem, measured=measured)
+    ends = snap_to_nodes(grid, truth[-1] + rng.uniform(-6000, 6000, (600, 2)))
+    ends = np.vstack([ends, [[-5e4, 0.0]]])
+    discarded = []
+    for fraction in (0.9, 0.5):
+        kernel = translated_msd_scores(problem, ends, fraction)
+        numpy_path = translated_msd_scores_numpy(problem, ends, fraction)
+        np.testing.assert_array_equal(np.isnan(kernel), np.isnan(numpy_path))
+        np.testing.assert_allclose(kernel, numpy_path, rtol=1e-13, atol=0.0)
+        assert np.nanargmin(kernel) == np.nanargmin(numpy_path)
+        assert np.isnan(kernel[-1])  # wholly off the map
+        assert np.isfinite(kernel).sum() > 100
+        discarded.append(int(np.isnan(kernel).sum()))
+    assert discarded[0] > discarded[1] > 1  # the min_valid_fraction rule is exercised

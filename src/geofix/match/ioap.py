@@ -202,11 +202,12 @@ def snap_to_nodes(grid: Grid, points: np.ndarray) -> np.ndarray:
     numpy.ndarray
         ``(u, 2)`` node positions, metres, in order of first appearance.
     """
-    col, row = grid.xy_to_cell(points[:, 0], points[:, 1])
-    cells = np.column_stack([np.rint(col), np.rint(row)])
-    _, first = np.unique(cells, axis=0, return_index=True)
-    cells = cells[np.sort(first)]
-    x, y = grid.cell_to_xy(cells[:, 0], cells[:, 1])
+    col, row = _node_cells(grid, points)
+    # one integer key per node: a 1-D unique is far cheaper than a row-wise one
+    key = (row - row.min()) * (col.max() - col.min() + 1) + (col - col.min())
+    _, first = np.unique(key, return_index=True)  # stable sort: first occurrences
+    first = np.sort(first)
+    x, y = grid.cell_to_xy(col[first], row[first])
     return np.column_stack([x, y])
 
 
