@@ -25,7 +25,7 @@ RUNS = (
         "source 001 run 2, multibeam, 10 m cells",
         ("tercom", "tercom-icp"),
         30,
-        4,
+        8,
     ),
     (
         "source002_bank",
