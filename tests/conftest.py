@@ -35,3 +35,36 @@ def azores_small() -> Grid:
     return load_grid(
         "builtin:azores", region=AZORES_SMALL_REGION, resample_m=1000.0, name="azores_small"
     )
+
+
+def small_mission_data(name: str, **changes) -> dict:
+    """A 20-sample single-beam mission on the bundled 1 km grid, as a scenario mapping.
+
+    ``changes`` replace top-level keys; ``track`` updates only the keys it names.
+    """
+    data = {
+        "name": name,
+        "map": {"path": "builtin:mb_1km"},
+        "track": {
+            "start_cell": [60, 60],
+            "heading_deg": 45,
+            "speed_m_s": 10,
+            "interval_s": 60,
+            "samples": 20,
+        },
+        "sensor": {"type": "singlebeam", "noise_std": 2.0},
+        "ins": {"initial_error_m": [1500, -1000], "velocity_error_m_s": 0.05},
+        "trials": 3,
+        "seed": 3,
+    }
+    data["track"].update(changes.pop("track", {}))
+    data.update(changes)
+    return data
+
+
+@pytest.fixture
+def small_mission():
+    """Factory of :func:`small_mission_data` scenarios (validated)."""
+    from geofix.sim.scenario import scenario_from_dict
+
+    return lambda name, **changes: scenario_from_dict(small_mission_data(name, **changes))

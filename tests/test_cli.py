@@ -28,22 +28,8 @@ METHOD_KEYS = {
 
 
 @pytest.fixture
-def scenario_file(tmp_path):
-    data = {
-        "name": "cli-small",
-        "map": {"path": "builtin:mb_1km"},
-        "track": {
-            "start_cell": [60, 60],
-            "heading_deg": 45,
-            "speed_m_s": 10,
-            "interval_s": 60,
-            "samples": 20,
-        },
-        "sensor": {"type": "singlebeam", "noise_std": 2.0},
-        "ins": {"initial_error_m": [1500, -1000], "velocity_error_m_s": 0.05},
-        "trials": 4,
-        "seed": 3,
-    }
+def scenario_file(tmp_path, small_mission):
+    data = small_mission("cli-small", trials=4).model_dump(mode="json", exclude={"base_dir"})
     path = tmp_path / "scen.yaml"
     path.write_text(yaml.safe_dump(data))
     return path

@@ -20,7 +20,6 @@ from geofix.evaluate.crlb import (
 from geofix.evaluate.metrics import end_mahalanobis, summarize
 from geofix.maps.grid import Grid
 from geofix.maps.synthetic import planar_grid
-from geofix.sim.scenario import scenario_from_dict
 from geofix.sim.trial import Trial
 
 
@@ -161,30 +160,11 @@ def test_mahalanobis_distance_and_the_false_fix_rule():
     assert summarize(no_cov, cell_m=50.0)["m"]["false_fix_rate"] == pytest.approx(0.5)
 
 
-def _scenario():
-    return scenario_from_dict(
-        {
-            "name": "crlb-small",
-            "map": {"path": "builtin:mb_1km"},
-            "track": {
-                "start_cell": [60, 60],
-                "heading_deg": 45,
-                "speed_m_s": 10,
-                "interval_s": 60,
-                "samples": 20,
-            },
-            "sensor": {"type": "singlebeam", "noise_std": 2.0},
-            "ins": {"initial_error_m": [1500, -1000], "velocity_error_m_s": 0.05},
-            "trials": 3,
-            "seed": 3,
-        }
-    )
-
-
-def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path):
+def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path, small_mission):
     import sqlite3
 
-    result = run_campaign(_scenario(), ["tercom"], jobs=1, out_dir=tmp_path, progress=False)
+    scen = small_mission("crlb-small")
+    result = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=False)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["crlb_m"] == pytest.approx(result.summary["crlb_m"])
     assert 0 < summary["crlb_m"] < 1500.0
@@ -195,6 +175,6 @@ def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path)
     assert result.frame["end_mahalanobis"].notna().all()  # tercom gives a covariance
     with sqlite3.connect(tmp_path / "results.sqlite") as db:
         db.execute("DROP TABLE trial_bounds")
-    again = run_campaign(_scenario(), ["tercom"], jobs=1, out_dir=tmp_path, progress=False)
+    again = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=False)
     assert again.computed == 0
     assert again.summary["crlb_m"] == pytest.approx(result.summary["crlb_m"])

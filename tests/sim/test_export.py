@@ -9,31 +9,12 @@ from geofix.errors import GeofixError
 from geofix.evaluate.runner import method_rng, run_trial
 from geofix.match.registry import parse_method_spec
 from geofix.sim.export import export_trials, load_exported
-from geofix.sim.scenario import scenario_from_dict
 from geofix.sim.simulate import prepare_map, simulate_trial
 
 
-def _scenario(sensor: dict, **extra):
-    return scenario_from_dict(
-        {
-            "name": "export-small",
-            "map": {"path": "builtin:mb_1km"},
-            "track": {
-                "start_cell": [60, 60],
-                "heading_deg": 45,
-                "speed_m_s": 10,
-                "interval_s": 60,
-                "samples": 8,
-                "legs": 2,
-                "turn_std_deg": 10,
-            },
-            "sensor": sensor,
-            "ins": {"initial_error_m": [1500, -1000], "velocity_error_m_s": 0.05},
-            "trials": 2,
-            "seed": 3,
-            **extra,
-        }
-    )
+def _scenario(factory, sensor: dict, **extra):
+    track = {"samples": 8, "legs": 2, "turn_std_deg": 10}
+    return factory("export-small", sensor=sensor, track=track, trials=2, **extra)
 
 
 def _assert_same_trial(a, b):
@@ -63,8 +44,8 @@ def _assert_same_trial(a, b):
     ],
     ids=["multibeam-dvl", "gravimeter-lag"],
 )
-def test_round_trip_gives_the_same_map_and_trials(tmp_path, sensor, extra):
-    scen = _scenario(sensor, **extra)
+def test_round_trip_gives_the_same_map_and_trials(tmp_path, sensor, extra, small_mission):
+    scen = _scenario(small_mission, sensor, **extra)
     path = export_trials(scen, tmp_path / "trials.nc", trials=3, seed=7)
     grid, trials = load_exported(path)
     ref_scen = scen.model_copy(update={"trials": 3, "seed": 7})
@@ -83,8 +64,8 @@ def test_round_trip_gives_the_same_map_and_trials(tmp_path, sensor, extra):
         _assert_same_trial(trial, simulate_trial(ref_scen, ref_grid, i))
 
 
-def test_file_is_self_describing_and_a_method_gives_the_same_answer(tmp_path):
-    scen = _scenario({"type": "singlebeam", "noise_std": 2.0})
+def test_file_is_self_describing_and_a_method_gives_the_same_answer(tmp_path, small_mission):
+    scen = _scenario(small_mission, {"type": "singlebeam", "noise_std": 2.0})
     path = export_trials(scen, tmp_path / "t.nc")
     with xr.open_dataset(path) as ds:
         assert {k: ds.sizes[k] for k in ("trial", "sample", "beam", "leg")} == {
@@ -112,13 +93,13 @@ def test_reading_something_else_raises(tmp_path):
         load_exported(tmp_path / "other.nc")
 
 
-def test_cli_export(tmp_path):
+def test_cli_export(tmp_path, small_mission):
     from typer.testing import CliRunner
 
     from geofix.cli import app
 
     scen_path = tmp_path / "s.yaml"
-    data = _scenario({"type": "singlebeam", "noise_std": 2.0}).model_dump(
+    data = _scenario(small_mission, {"type": "singlebeam", "noise_std": 2.0}).model_dump(
         mode="json", exclude={"base_dir"}
     )
     scen_path.write_text(yaml.safe_dump(data))
