@@ -14,8 +14,8 @@ import time
 import numpy as np
 
 from geofix.maps.grid import Grid
-from geofix.match.base import MatchProblem
 from geofix.match.tercom import Tercom
+from geofix.problem import MatchProblem
 
 
 def make_problem(rng: np.random.Generator, points: int = 110, half_cells: int = 150):

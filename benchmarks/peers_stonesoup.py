@@ -6,7 +6,7 @@ does (``simulate_trial(scenario, grid, index)``), so geofix's ``pmf`` / ``pf`` a
 Soup's filters run on identical truth, INS track and measurements. Stone Soup filters the
 position *error* ``e = position - indicated`` (a random walk: ``F = I``, ``Q = q I`` with
 ``q`` the step's ``Motion.process_var``), and reads the map through a measurement model
-whose function is geofix's own :func:`~geofix.filters.measurement.predict_measurements`
+whose function is geofix's own :func:`~geofix.measurement.predict_measurements`
 (off-map beams read a value ``1e6`` field units away from the measurement), so the two
 sides share the map reading and differ only in the filter machinery:
 
@@ -39,7 +39,7 @@ def _measurement_model_class():
     from stonesoup.models.measurement.nonlinear import NonLinearGaussianMeasurement
     from stonesoup.types.array import StateVectors
 
-    from geofix.filters.measurement import predict_measurements
+    from geofix.measurement import predict_measurements
 
     class TerrainMeasurement(NonLinearGaussianMeasurement):
         """Field read at every beam from ``indicated + error`` (state = position error)."""

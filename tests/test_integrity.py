@@ -15,14 +15,14 @@ from geofix.evaluate.runner import method_rng, run_trial
 from geofix.filters.sitan import posterior_too_wide
 from geofix.maps.synthetic import planar_grid
 from geofix.match import integrity, tercom
-from geofix.match.base import MatchProblem
 from geofix.match.integrity import (
     cover_covariance,
     information_covariance,
     terrain_integrity,
     terrain_snr,
 )
-from geofix.match.registry import available_methods, parse_method_spec
+from geofix.methods import available_methods, parse_method_spec
+from geofix.problem import MatchProblem
 from geofix.sim.scenario import builtin_scenario_path, load_scenario
 from geofix.sim.simulate import prepare_map, simulate_trial
 

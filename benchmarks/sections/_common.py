@@ -20,11 +20,13 @@ def scenario(name: str):
 
 def campaign(scen, methods: list[str], trials: int | None = None, jobs: int | None = None):
     """Run (or resume) a campaign into ``out/results/<scenario name>``; return its result."""
+    from geofix.console import ProgressBar
     from geofix.evaluate.campaign import run_campaign
 
-    return run_campaign(
-        scen, methods, trials=trials, jobs=jobs, out_dir=OUT / scen.name, progress=True
-    )
+    with ProgressBar(scen.name) as bar:
+        return run_campaign(
+            scen, methods, trials=trials, jobs=jobs, out_dir=OUT / scen.name, progress=bar
+        )
 
 
 def fmt(value, digits: int = 2) -> str:

@@ -162,7 +162,7 @@ nodes stay within half a cell; log-space Bayes recursion, separable convolution 
 INS-error kernel) and the bootstrap particle filter `pf` (5000 particles, or more while
 the cloud is wide: about one per half cell, up to 200 000; stratified prior, systematic
 resampling at ESS < M/2, Gordon's roughening). Both use the one measurement model of
-`geofix.filters.measurement`. They run on
+`geofix.measurement`. They run on
 the bundled real-map scenarios of the source issues (scenario files unchanged, results stored
 apart as `filters_*`; {trials} seeded trials respectively), beside the batch methods of those
 sources (run leg by leg with an INS reset to each fix) and the SITAN bank where it applies.

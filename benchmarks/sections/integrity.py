@@ -77,7 +77,7 @@ def _rms(stats: dict) -> float | None:
 
 
 def _bounds_part(trials: int, quick: bool) -> str:
-    from geofix.match.registry import available_methods
+    from geofix.methods import available_methods
 
     methods = [m for m in BOUND_METHODS if m in available_methods()]
     rows, ratios = [], []
@@ -132,16 +132,18 @@ def navo_scenario(sensor: str):
 
 
 def _navo_part(trials: int) -> str:
+    from geofix.console import ProgressBar
     from geofix.evaluate.campaign import run_campaign
-    from geofix.match.registry import available_methods
+    from geofix.methods import available_methods
 
     methods = list(available_methods())
     rows, failing = [], []
     for sensor in ("singlebeam", "multibeam"):
         scen = navo_scenario(sensor)
-        result = run_campaign(
-            scen, methods, trials=trials, jobs=2, out_dir=OUT / scen.name, progress=True
-        )
+        with ProgressBar(scen.name) as bar:
+            result = run_campaign(
+                scen, methods, trials=trials, jobs=2, out_dir=OUT / scen.name, progress=bar
+            )
         frame = result.frame
         for spec in methods:
             s = result.summary["methods"][spec]
@@ -197,9 +199,10 @@ def _navo_part(trials: int) -> str:
 
 # ---------------------------------------------------------------------- suitability
 def _suitability_part() -> str:
-    from geofix.evaluate.suitability import suitability, suitability_figure
+    from geofix.evaluate.suitability import suitability
     from geofix.maps.io import load_grid
     from geofix.plot.figures import save_figure
+    from geofix.plot.suitability import suitability_figure
 
     grid = load_grid("builtin:azores", region=(-31.5, -28.5, 37.5, 40.0), resample_m=1000)
     result = suitability(grid, window_cells=21, noise_std=5.0)

@@ -92,7 +92,7 @@ def _campaign_numbers(frame) -> dict:
 def _ablation(n_trials: int) -> dict:
     """Table 4: variants A-D on track A, (150, 150) m; errors, iterations and times."""
     from geofix.evaluate.runner import method_rng
-    from geofix.match.registry import parse_method_spec
+    from geofix.methods import parse_method_spec
     from geofix.sim.simulate import prepare_map, simulate_trial
 
     scen = scenario("source000_a_150")

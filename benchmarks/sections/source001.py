@@ -78,8 +78,8 @@ def _direct_runs(scen, grid, n_trials: int, n_iteration_trials: int) -> tuple[di
     """
     from geofix.errors import GeofixError
     from geofix.match.icp import nadir_problem
-    from geofix.match.registry import parse_method_spec
     from geofix.match.tercom import Tercom
+    from geofix.methods import parse_method_spec
     from geofix.sim.simulate import simulate_trial
 
     tercom = Tercom(metric="msd", window_sigma=3.0)

@@ -53,7 +53,7 @@ def _ins_alone(name: str, trials: int) -> tuple[float, float]:
 
 
 def _available(specs) -> list[str]:
-    from geofix.match.registry import available_methods
+    from geofix.methods import available_methods
 
     known = available_methods()
     return [s for s in specs if s.partition(":")[0] in known]

@@ -7,7 +7,7 @@ depths, gravimeter anomalies) against a prior map to correct INS drift. See
 
 from geofix.errors import ConfigError, GeofixError, MapError, MatchError, TrackOffMapError
 from geofix.maps.grid import Grid
-from geofix.match.base import Fix, Matcher, MatchProblem
+from geofix.problem import Fix, Matcher, MatchProblem
 
 __version__ = "0.1.0"
 

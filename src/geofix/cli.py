@@ -66,20 +66,22 @@ def run(
     """Run a Monte Carlo campaign of one or more methods on a scenario."""
 
     def go():
+        from geofix.console import ProgressBar
         from geofix.evaluate.campaign import run_campaign
         from geofix.sim.scenario import load_scenario
 
         scen = load_scenario(scenario)
-        result = run_campaign(
-            scen,
-            method,
-            trials=trials,
-            seed=seed,
-            jobs=jobs,
-            out_dir=out,
-            scheduler=scheduler,
-            progress=not json_output or sys.stderr.isatty(),
-        )
+        with ProgressBar(scen.name, enabled=not json_output or sys.stderr.isatty()) as bar:
+            result = run_campaign(
+                scen,
+                method,
+                trials=trials,
+                seed=seed,
+                jobs=jobs,
+                out_dir=out,
+                scheduler=scheduler,
+                progress=bar,
+            )
         if json_output:
             sys.stdout.write(json.dumps(result.summary) + "\n")
             return
@@ -99,13 +101,17 @@ def demo(
     """TERCOM Monte Carlo on the bundled Azores bathymetry: table and figure."""
 
     def go():
+        from geofix.console import ProgressBar
         from geofix.evaluate.campaign import run_campaign
         from geofix.sim.scenario import load_scenario
 
         scen = load_scenario(builtin_scenario("azores_demo"))
         methods = ["tercom", "tercom:metric=mad"]
         _out.print(f"[bold]{scen.name}[/]: TERCOM on the bundled Azores bathymetry")
-        result = run_campaign(scen, methods, trials=trials, jobs=jobs, out_dir=out)
+        with ProgressBar(scen.name) as bar:
+            result = run_campaign(
+                scen, methods, trials=trials, jobs=jobs, out_dir=out, progress=bar
+            )
         _print_summary(result)
         _out.print(f"figure: {_write_figure(scen, methods, result, out)}")
 
@@ -115,7 +121,7 @@ def demo(
 @app.command()
 def methods() -> None:
     """List every method with its settings and their defaults."""
-    from geofix.match.registry import available_methods, method_settings
+    from geofix.methods import available_methods, method_settings
 
     for name, cls in available_methods().items():
         table = Table(title=f"{name} -- {(cls.__doc__ or '').strip().splitlines()[0]}")
@@ -166,6 +172,7 @@ def suitability(
         from geofix.evaluate.suitability import save_suitability
         from geofix.evaluate.suitability import suitability as compute
         from geofix.maps.io import load_grid
+        from geofix.plot.suitability import save_suitability_figure
 
         grid = load_grid(
             map_path, variable=variable, kind=kind, region=region, resample_m=resample_m
@@ -178,7 +185,9 @@ def suitability(
                 f"{grid!r}: CRLB of a {window_cells}-sample track (worst heading) "
                 f"p10 {q[0]:.3g} m, median {q[1]:.3g} m, p90 {q[2]:.3g} m"
             )
-        for label, path in save_suitability(result, out).items():
+        paths = save_suitability(result, out)
+        paths["figure"] = save_suitability_figure(result, out)
+        for label, path in paths.items():
             _out.print(f"{label}: {path}")
 
     _guarded(go)
@@ -211,7 +220,7 @@ def builtin_scenario(name: str) -> Path:
 
 
 def _print_summary(result) -> None:
-    from geofix.evaluate.campaign import summary_table
+    from geofix.console import summary_table
 
     _out.print(summary_table(result.summary))
     for label, path in result.paths.items():
@@ -223,7 +232,7 @@ def _write_figure(scen, specs, result, out: Path) -> Path:
     import numpy as np
 
     from geofix.evaluate.runner import method_rng, run_trial
-    from geofix.match.registry import parse_method_spec
+    from geofix.methods import parse_method_spec
     from geofix.plot.figures import campaign_figure, save_figure
     from geofix.sim.simulate import prepare_map, simulate_trial
 

@@ -9,13 +9,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from geofix import methods as registry
+from geofix.console import summary_table
 from geofix.errors import ConfigError, MapError, MatchError, TrackOffMapError
-from geofix.evaluate import run_campaign, run_trial, summary_table
+from geofix.evaluate import run_campaign, run_trial
 from geofix.evaluate.runner import method_rng
 from geofix.evaluate.store import ResultStore
 from geofix.maps.grid import Grid
-from geofix.match import registry
-from geofix.match.base import Fix
+from geofix.problem import Fix
 from geofix.sim.scenario import scenario_from_dict
 from geofix.sim.trial import Trial
 
@@ -205,7 +206,7 @@ def _table(result):
 def reference(tmp_path_factory):
     """An uninterrupted in-process campaign."""
     out = tmp_path_factory.mktemp("reference")
-    return run_campaign(_scenario(), ["tercom", "test_jitter"], jobs=1, out_dir=out, progress=False)
+    return run_campaign(_scenario(), ["tercom", "test_jitter"], jobs=1, out_dir=out, progress=None)
 
 
 def test_summary_contract_and_files(reference):
@@ -230,11 +231,11 @@ def test_summary_contract_and_files(reference):
 
 def test_resume_after_interrupt_gives_the_uninterrupted_table(tmp_path, reference):
     methods = ["tercom", "test_interrupt"]
-    full = run_campaign(_scenario(), methods, jobs=1, out_dir=tmp_path / "a", progress=False)
+    full = run_campaign(_scenario(), methods, jobs=1, out_dir=tmp_path / "a", progress=None)
     _INTERRUPT.update(calls=0, stop_at=7)  # 2 legs a trial: first leg of trial 3
     with pytest.raises(KeyboardInterrupt):
-        run_campaign(_scenario(), methods, jobs=1, out_dir=tmp_path / "b", progress=False)
-    resumed = run_campaign(_scenario(), methods, jobs=1, out_dir=tmp_path / "b", progress=False)
+        run_campaign(_scenario(), methods, jobs=1, out_dir=tmp_path / "b", progress=None)
+    resumed = run_campaign(_scenario(), methods, jobs=1, out_dir=tmp_path / "b", progress=None)
     assert resumed.computed == 6  # trials 3..5 of both methods; 0..2 came from the store
     pd.testing.assert_frame_equal(_table(resumed), _table(full))
     # test_interrupt draws like test_jitter under its own spec: different numbers
@@ -243,18 +244,18 @@ def test_resume_after_interrupt_gives_the_uninterrupted_table(tmp_path, referenc
 
 def test_more_trials_extend_a_shorter_campaign(tmp_path, reference):
     methods = ["tercom", "test_jitter"]
-    short = run_campaign(_scenario(), methods, trials=3, jobs=1, out_dir=tmp_path, progress=False)
+    short = run_campaign(_scenario(), methods, trials=3, jobs=1, out_dir=tmp_path, progress=None)
     assert short.computed == 6 and short.trials == 3 and len(short.frame) == 6
-    longer = run_campaign(_scenario(), methods, trials=6, jobs=1, out_dir=tmp_path, progress=False)
+    longer = run_campaign(_scenario(), methods, trials=6, jobs=1, out_dir=tmp_path, progress=None)
     assert longer.computed == 6
     pd.testing.assert_frame_equal(_table(longer), _table(reference))
-    again = run_campaign(_scenario(), methods, jobs=1, out_dir=tmp_path, progress=False)
+    again = run_campaign(_scenario(), methods, jobs=1, out_dir=tmp_path, progress=None)
     assert again.computed == 0
 
 
 def test_process_pool_gives_the_same_table(tmp_path, reference):
     pooled = run_campaign(
-        _scenario(), ["tercom", "test_jitter"], jobs=2, out_dir=tmp_path, progress=False
+        _scenario(), ["tercom", "test_jitter"], jobs=2, out_dir=tmp_path, progress=None
     )
     assert pooled.computed == 12
     pd.testing.assert_frame_equal(_table(pooled), _table(reference))
@@ -273,14 +274,14 @@ def test_dask_cluster_gives_the_same_table(tmp_path, reference):
             ["tercom", "test_jitter"],
             out_dir=tmp_path,
             scheduler=cluster,
-            progress=False,
+            progress=None,
         )
     pd.testing.assert_frame_equal(_table(result), _table(reference))
 
 
 def test_other_seed_gives_other_results(tmp_path, reference):
     other = run_campaign(
-        _scenario(), ["test_jitter"], trials=2, seed=8, jobs=1, out_dir=tmp_path, progress=False
+        _scenario(), ["test_jitter"], trials=2, seed=8, jobs=1, out_dir=tmp_path, progress=None
     )
     assert not np.allclose(other.frame["end_error_m"], reference.frame["end_error_m"][6:8])
 
@@ -303,5 +304,5 @@ def test_other_seed_gives_other_results(tmp_path, reference):
 )
 def test_errors_before_any_trial_create_no_store(tmp_path, scenario, methods, error):
     with pytest.raises(error):
-        run_campaign(scenario, methods, jobs=1, out_dir=tmp_path / "out", progress=False)
+        run_campaign(scenario, methods, jobs=1, out_dir=tmp_path / "out", progress=None)
     assert not (tmp_path / "out").exists()

@@ -9,17 +9,15 @@ import pytest
 from geofix.evaluate import run_campaign
 from geofix.evaluate.crlb import (
     batch_bound,
-    beam_gradients,
-    inverse_trace,
     process_variances,
     recursive_bound,
     rms_bound,
-    sample_information,
     trial_crlb,
 )
 from geofix.evaluate.metrics import end_mahalanobis, summarize
 from geofix.maps.grid import Grid
 from geofix.maps.synthetic import planar_grid
+from geofix.measurement import beam_gradients, inverse_trace, sample_information
 from geofix.sim.trial import Trial
 
 
@@ -164,7 +162,7 @@ def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path,
     import sqlite3
 
     scen = small_mission("crlb-small")
-    result = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=False)
+    result = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=None)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["crlb_m"] == pytest.approx(result.summary["crlb_m"])
     assert 0 < summary["crlb_m"] < 1500.0
@@ -175,6 +173,6 @@ def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path,
     assert result.frame["end_mahalanobis"].notna().all()  # tercom gives a covariance
     with sqlite3.connect(tmp_path / "results.sqlite") as db:
         db.execute("DROP TABLE trial_bounds")
-    again = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=False)
+    again = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=None)
     assert again.computed == 0
     assert again.summary["crlb_m"] == pytest.approx(result.summary["crlb_m"])

@@ -14,6 +14,7 @@ from geofix.evaluate.suitability import (
 from geofix.maps.grid import Grid
 from geofix.maps.io import load_grid
 from geofix.maps.synthetic import planar_grid
+from geofix.plot.suitability import save_suitability_figure
 
 
 def _bowl(a=0.02, cell=10.0, n=81):
@@ -77,6 +78,7 @@ def test_bad_settings_raise():
 def test_save_writes_grids_that_load_back_and_a_figure(tmp_path):
     result = suitability(_bowl(), window_cells=5, noise_std=0.5)
     paths = save_suitability(result, tmp_path)
+    paths["figure"] = save_suitability_figure(result, tmp_path)
     assert paths["figure"].stat().st_size > 10_000
     back = load_grid(paths["crlb"])
     np.testing.assert_array_equal(back.values, result.crlb.values)

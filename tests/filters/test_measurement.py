@@ -5,11 +5,11 @@ import pytest
 
 from geofix.errors import ConfigError
 from geofix.filters.base import observations, run_filter
-from geofix.filters.measurement import OFF_MAP_LOG_LIKELIHOOD, log_likelihood
 from geofix.filters.pmf import Pmf
 from geofix.filters.sitan import measurement_covariance
 from geofix.maps.synthetic import planar_grid
-from geofix.match.base import MatchProblem, footprint_xy
+from geofix.measurement import OFF_MAP_LOG_LIKELIHOOD, log_likelihood
+from geofix.problem import MatchProblem, footprint_xy
 
 SLOPE = np.array([0.04, -0.015])  # mGal per metre
 OFFSETS = np.array([[-60.0, 0.0], [0.0, 0.0], [60.0, 0.0]])

@@ -7,8 +7,8 @@ from geofix.errors import ConfigError, MatchError
 from geofix.filters.pf import Pf, PfState, effective_sample_size, systematic_resample
 from geofix.filters.pmf import Pmf
 from geofix.maps.synthetic import fractal_terrain
-from geofix.match.base import MatchProblem, footprint_xy
-from geofix.match.registry import parse_method_spec
+from geofix.methods import parse_method_spec
+from geofix.problem import MatchProblem, footprint_xy
 
 
 def _fractal_problem(seed=11, n=12, noise=2.0, sigma0=40.0):

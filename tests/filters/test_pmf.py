@@ -11,8 +11,8 @@ from geofix.filters import _grid_ops as ops
 from geofix.filters.base import motions, observations, run_filter
 from geofix.filters.pmf import Pmf, PmfState, node_field_variance
 from geofix.maps.synthetic import fractal_terrain, planar_grid
-from geofix.match.base import MatchProblem, footprint_xy
-from geofix.match.registry import parse_method_spec
+from geofix.methods import parse_method_spec
+from geofix.problem import MatchProblem, footprint_xy
 
 SLOPE = np.array([0.04, -0.015])  # mGal per metre: a strong, gravity-like plane
 OFFSETS = np.array([[-60.0, 0.0], [0.0, 0.0], [60.0, 0.0]])  # three beams across track
@@ -282,8 +282,8 @@ def test_a_small_far_mode_stays_on_the_grid():
 
 
 def test_field_prediction_matches_bilinear_sampling_at_the_footprints():
-    from geofix.filters.measurement import predict_measurements
-    from geofix.match.base import footprint_xy
+    from geofix.measurement import predict_measurements
+    from geofix.problem import footprint_xy
 
     rng = np.random.default_rng(8)
     grid = fractal_terrain((60, 50), 10.0, rng=rng, std=5.0)

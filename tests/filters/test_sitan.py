@@ -16,8 +16,8 @@ from geofix.filters.sitan import (
     transition,
 )
 from geofix.maps.synthetic import fractal_terrain, planar_grid
-from geofix.match.base import MatchProblem, footprint_xy
-from geofix.match.registry import parse_method_spec
+from geofix.methods import parse_method_spec
+from geofix.problem import MatchProblem, footprint_xy
 
 SLOPE = np.array([0.05, -0.02])  # metres of depth per metre: a steep, tilted plane
 OFFSETS = np.array([[-40.0, 0.0], [0.0, 0.0], [40.0, 0.0]])  # three beams across track

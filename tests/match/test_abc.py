@@ -13,8 +13,8 @@ from geofix.match.abc import (
     pair_displacements,
     satisfies_displacement,
 )
-from geofix.match.base import MatchProblem
-from geofix.match.registry import parse_method_spec
+from geofix.methods import parse_method_spec
+from geofix.problem import MatchProblem
 from geofix.sensors.gravimeter import apply_first_order_lag
 
 HEADING = 1.2  # radians clockwise from north

@@ -8,9 +8,9 @@ import pytest
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.synthetic import fractal_terrain, planar_grid
 from geofix.match._affine import adaptive_spacing, nearest_beams, transform_tracks
-from geofix.match.base import MatchProblem, footprint_xy
 from geofix.match.ga_sca import GaSca
-from geofix.match.registry import parse_method_spec
+from geofix.methods import parse_method_spec
+from geofix.problem import MatchProblem, footprint_xy
 
 N, STEP, HEADING = 15, 12.0, np.radians(60.0)
 OFFSETS = np.column_stack([np.linspace(-20, 20, 21), np.zeros(21)])

@@ -9,10 +9,10 @@ import pytest
 
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.synthetic import fractal_terrain
-from geofix.match.base import MatchProblem, footprint_xy
 from geofix.match.icp import Icp, TercomIcp
-from geofix.match.registry import parse_method_spec
 from geofix.match.rigid import apply_transform, rotation_2d
+from geofix.methods import parse_method_spec
+from geofix.problem import MatchProblem, footprint_xy
 
 # 17 beams 10 m apart across track: with a north-going track on cell centres every
 # footprint of the true track is a grid point, so a noiseless cloud fits the map exactly.

@@ -7,7 +7,6 @@ import pytest
 
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.grid import Grid
-from geofix.match.base import MatchProblem
 from geofix.match.ioap import (
     Ioap,
     epmp_layout,
@@ -19,7 +18,8 @@ from geofix.match.ioap import (
     translated_msd_scores,
     translated_msd_scores_numpy,
 )
-from geofix.match.registry import parse_method_spec
+from geofix.methods import parse_method_spec
+from geofix.problem import MatchProblem
 
 CELL = 100.0
 

@@ -5,9 +5,9 @@ import pytest
 
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.grid import Grid
-from geofix.match.base import MatchProblem
-from geofix.match.registry import parse_method_spec
 from geofix.match.tercom import Tercom
+from geofix.methods import parse_method_spec
+from geofix.problem import MatchProblem
 
 
 def _rough_grid(rng, shape=(200, 220), cell=10.0):
@@ -24,7 +24,7 @@ def _rough_grid(rng, shape=(200, 220), cell=10.0):
 def _problem(grid, truth, offset, heading=0.3, offsets=None, noise=0.0, rng=None, sigma=30.0):
     offsets = np.zeros((1, 2)) if offsets is None else offsets
     psi = np.full(len(truth), heading)
-    from geofix.match.base import footprint_xy
+    from geofix.problem import footprint_xy
 
     fx, fy = footprint_xy(truth, psi, offsets)
     measured = grid.sample(fx, fy)

@@ -12,8 +12,8 @@ from geofix.nav.ins import (
     schuler_gyro_error,
     simulate_ins,
 )
+from geofix.nav.spec import DvlSpec, InsSpec
 from geofix.nav.trajectory import true_trajectory
-from geofix.sim.scenario import DvlSpec, InsSpec
 
 UG = 9.80665e-6
 

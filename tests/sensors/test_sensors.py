@@ -5,16 +5,15 @@ import pytest
 
 from geofix.errors import ConfigError
 from geofix.maps.grid import Grid
-from geofix.match.base import footprint_xy
+from geofix.problem import footprint_xy
 from geofix.sensors import (
     apply_first_order_lag,
     beam_noise_std,
     compensate_first_order_lag,
-    measure,
-    measure_with_unlagged,
     sensor_offsets,
 )
-from geofix.sim.scenario import SensorSpec
+from geofix.sensors.spec import SensorSpec
+from geofix.sim.sensing import measure, measure_with_unlagged
 
 
 def smooth_grid(kind="depth"):

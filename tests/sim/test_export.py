@@ -7,7 +7,7 @@ import yaml
 
 from geofix.errors import GeofixError
 from geofix.evaluate.runner import method_rng, run_trial
-from geofix.match.registry import parse_method_spec
+from geofix.methods import parse_method_spec
 from geofix.sim.export import export_trials, load_exported
 from geofix.sim.simulate import prepare_map, simulate_trial
 

@@ -7,7 +7,7 @@
 - :func:`summarize` reduces a results table to per-method statistics.
 """
 
-from geofix.evaluate.campaign import CampaignResult, run_campaign, summary_table
+from geofix.evaluate.campaign import CampaignResult, run_campaign
 from geofix.evaluate.metrics import summarize
 from geofix.evaluate.runner import TrialResult, method_rng, run_trial
 from geofix.evaluate.store import ResultStore, scenario_hash
@@ -21,5 +21,4 @@ __all__ = [
     "run_trial",
     "scenario_hash",
     "summarize",
-    "summary_table",
 ]

@@ -32,9 +32,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-from rich.table import Table
 
 from geofix.errors import ConfigError, GeofixError
 from geofix.evaluate.crlb import rms_bound, scenario_beam_variance, trial_crlb
@@ -42,7 +39,7 @@ from geofix.evaluate.metrics import end_mahalanobis, summarize
 from geofix.evaluate.runner import TrialResult, method_rng, run_trial
 from geofix.evaluate.store import ResultStore, scenario_hash
 from geofix.maps.grid import Grid
-from geofix.match.registry import parse_method_spec
+from geofix.methods import parse_method_spec
 from geofix.sim.scenario import Scenario
 
 SUMMARY_NAME = "summary.json"
@@ -125,7 +122,7 @@ def run_campaign(
     jobs: int | None = None,
     out_dir: str | Path = "out",
     scheduler=None,
-    progress: bool = True,
+    progress: Callable[[int, int], None] | None = None,
 ) -> CampaignResult:
     """Run every method on trials ``0 .. trials-1`` of a scenario, resuming stored work.
 
@@ -147,8 +144,10 @@ def run_campaign(
         Folder of ``results.sqlite`` and ``summary.json``.
     scheduler : str or object, optional
         A Dask scheduler address or cluster, handed to ``distributed.Client``.
-    progress : bool
-        Show a progress bar on stderr.
+    progress : callable, optional
+        Called as ``progress(done, total)`` with the number of (method, trial) results
+        computed so far and to compute in this call: once before the first, then after
+        each (:class:`geofix.console.ProgressBar` draws a bar on the terminal).
 
     Returns
     -------
@@ -176,22 +175,25 @@ def run_campaign(
         results = backend(simulate.simulate_trial, scenario, grid, tasks)
         computed = 0
         bounds = _open_bounds(store.path)
-        with (
-            closing(bounds),
-            closing(results),
-            _Bar(progress, scenario.name, sum(len(t[1]) for t in tasks)) as bar,
-        ):
+        total = sum(len(t[1]) for t in tasks)
+        report = progress or _no_progress
+        report(0, total)
+        with closing(bounds), closing(results):
             for done, info in results:
                 for spec, index, result in done:
                     store.record(scenario.name, shash, spec, index, result)
                 _record_info(bounds, shash, info)
-                bar.advance(len(done))
                 computed += len(done)
+                report(computed, total)
             infos = _all_infos(bounds, shash, scenario, grid, simulate.simulate_trial)
         frame = _campaign_frame(store.to_frame(shash, arrays=True), list(parsed), scenario.trials)
     frame = _with_integrity(frame, infos)
     result = _finish(scenario, grid, frame, out, store.path, computed, infos)
     return dataclasses.replace(result, scenario_hash=shash)
+
+
+def _no_progress(done: int, total: int) -> None:
+    """The default progress report: none."""
 
 
 def _override(scenario: Scenario, trials: int | None, seed: int | None) -> Scenario:
@@ -429,78 +431,3 @@ def _run_dask(scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Don
                 yield future.result()
         finally:
             client.cancel(futures)
-
-
-class _Bar:
-    """A rich progress bar on stderr counting (method, trial) results."""
-
-    def __init__(self, enabled: bool, name: str, total: int) -> None:
-        self._progress = Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeRemainingColumn(),
-            console=Console(stderr=True),
-            disable=not enabled,
-        )
-        self._task = self._progress.add_task(name, total=total)
-
-    def __enter__(self) -> _Bar:
-        self._progress.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._progress.stop()
-
-    def advance(self, n: int) -> None:
-        """Count ``n`` more results."""
-        self._progress.advance(self._task, n)
-
-
-# --------------------------------------------------------------------------- printing
-def summary_table(summary: dict) -> Table:
-    """A printable table of a campaign summary.
-
-    Parameters
-    ----------
-    summary : dict
-        As returned in :attr:`CampaignResult.summary`.
-
-    Returns
-    -------
-    rich.table.Table
-        One row per method: trials, failures, mean / std / median / max end-point error
-        and mean along-track error (metres), success rates within 100 m, 1 cell and
-        3 cells (%), mean time per ``match`` call (milliseconds).
-    """
-    title = f"{summary['scenario']}: {summary['trials']} trials, errors in metres"
-    table = Table(title=title)
-    table.add_column("method", style="bold", no_wrap=True)
-    for head, _ in _TABLE_COLUMNS:
-        table.add_column(head, justify="right")
-    for spec, stats in summary["methods"].items():
-        table.add_row(spec, *(cell(stats) for _, cell in _TABLE_COLUMNS))
-    return table
-
-
-def _fmt(value: float | None, digits: int = 1, scale: float = 1.0) -> str:
-    return "-" if value is None else f"{scale * value:.{digits}f}"
-
-
-def _pct(value: float | None) -> str:
-    return "-" if value is None else f"{100 * value:.0f}%"
-
-
-_TABLE_COLUMNS = (
-    ("trials", lambda s: str(s["trials"])),
-    ("failed", lambda s: str(s["failures"])),
-    ("mean", lambda s: _fmt(s["mean_error_m"])),
-    ("std", lambda s: _fmt(s["std_error_m"])),
-    ("median", lambda s: _fmt(s["median_error_m"])),
-    ("max", lambda s: _fmt(s["max_error_m"])),
-    ("track", lambda s: _fmt(s["mean_track_error_m"])),
-    ("≤100 m", lambda s: _pct(s["success_rate"]["100"])),
-    ("≤1 cell", lambda s: _pct(s["success_rate"]["1c"])),
-    ("≤3 cells", lambda s: _pct(s["success_rate"]["3c"])),
-    ("ms/call", lambda s: _fmt(s["mean_time_s"], 2, 1e3)),
-)

@@ -32,14 +32,12 @@ then slightly optimistic).
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from geofix.maps.grid import Grid
-from geofix.maps.terrain import gradient
-from geofix.match.base import footprint_xy
+from geofix.measurement import beam_gradients, inverse_trace, sample_information
 
 #: Smallest per-step process variance, m^2 (the same floor as the filters' motion model).
 MIN_PROCESS_VAR = 1e-6
@@ -69,101 +67,6 @@ class TrialBound:
     def batch_m(self) -> float:
         """Bound on the RMS error of a rigid batch fix of the last leg, metres."""
         return float(np.sqrt(self.batch_var_m2))
-
-
-@functools.lru_cache(maxsize=4)
-def gradient_grids(grid: Grid) -> tuple[Grid, Grid]:
-    """The map's gradient along x and y as two grids (NaN where it cannot be formed).
-
-    Parameters
-    ----------
-    grid : Grid
-        The map (cached by identity: a campaign worker computes it once).
-
-    Returns
-    -------
-    tuple of Grid
-        ``(gx, gy)`` in field units per metre, on the map's cells.
-    """
-    gx, gy = gradient(grid)
-    return grid.with_values(gx), grid.with_values(gy)
-
-
-def beam_gradients(grid: Grid, track, heading, offsets) -> tuple[np.ndarray, np.ndarray]:
-    """Map gradient at every beam footprint of a track.
-
-    Parameters
-    ----------
-    grid : Grid
-        The map.
-    track : array_like
-        ``(n, 2)`` vehicle positions, metres.
-    heading : array_like
-        ``(n,)`` headings, radians clockwise from north.
-    offsets : array_like
-        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres.
-
-    Returns
-    -------
-    tuple of numpy.ndarray
-        ``(gx, gy)`` each ``(n, b)``, field units per metre; 0 where no gradient exists.
-    """
-    gxg, gyg = gradient_grids(grid)
-    x, y = footprint_xy(
-        np.asarray(track, float), np.asarray(heading, float), np.asarray(offsets, float)
-    )
-    gx = np.nan_to_num(gxg.sample(x, y), nan=0.0)
-    gy = np.nan_to_num(gyg.sample(x, y), nan=0.0)
-    return gx, gy
-
-
-def sample_information(gx, gy, beam_var, valid=None) -> np.ndarray:
-    """Fisher information of each sample about the vehicle position.
-
-    Parameters
-    ----------
-    gx, gy : array_like
-        ``(n, b)`` map gradients at the footprints, field units per metre.
-    beam_var : float or array_like
-        Measurement variance, field units squared: a scalar or ``(b,)`` per beam.
-    valid : array_like of bool, optional
-        ``(n, b)``; False for a missing measurement (it carries no information).
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(n, 2, 2)`` information matrices, 1/m^2.
-    """
-    gx = np.asarray(gx, float)
-    gy = np.asarray(gy, float)
-    w = np.broadcast_to(1.0 / np.asarray(beam_var, float), gx.shape)
-    if valid is not None:
-        w = np.where(valid, w, 0.0)
-    sxx = (w * gx * gx).sum(axis=-1)
-    sxy = (w * gx * gy).sum(axis=-1)
-    syy = (w * gy * gy).sum(axis=-1)
-    return np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
-
-
-def inverse_trace(info: np.ndarray) -> np.ndarray:
-    """``trace(J^-1)`` of 2 x 2 information matrices, ``inf`` where singular.
-
-    Parameters
-    ----------
-    info : numpy.ndarray
-        ``(..., 2, 2)`` symmetric positive semi-definite matrices, 1/m^2.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(...)`` traces of the inverses, m^2 (``trace / det``).
-    """
-    info = np.asarray(info, float)
-    trace = info[..., 0, 0] + info[..., 1, 1]
-    det = info[..., 0, 0] * info[..., 1, 1] - info[..., 0, 1] * info[..., 1, 0]
-    singular = det <= 1e-12 * np.maximum(trace, 1e-300) ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(singular, np.inf, trace / np.where(singular, 1.0, det))
 
 
 def batch_bound(info: np.ndarray) -> np.ndarray:

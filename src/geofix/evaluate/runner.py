@@ -24,7 +24,7 @@ import numpy as np
 
 from geofix.errors import GeofixError
 from geofix.maps.grid import Grid
-from geofix.match.base import Fix, MatchProblem
+from geofix.problem import Fix, MatchProblem
 from geofix.sim.trial import Trial
 
 

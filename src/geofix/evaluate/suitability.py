@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from geofix.errors import ConfigError
-from geofix.evaluate.crlb import gradient_grids, inverse_trace
 from geofix.maps.grid import Grid
 from geofix.maps.terrain import local_std
+from geofix.measurement import gradient_grids, inverse_trace
 
 #: Track headings of the standard track, degrees clockwise from north.
 DEFAULT_HEADINGS_DEG = (0.0, 45.0, 90.0, 135.0)
@@ -215,7 +215,9 @@ def suitability(
 
 
 def save_suitability(result: Suitability, out_dir: str | Path) -> dict[str, Path]:
-    """Write the layers as grids (netCDF, :func:`geofix.maps.io.save_grid`) and a figure.
+    """Write the layers as grids (netCDF, :func:`geofix.maps.io.save_grid`).
+
+    The figure is :func:`geofix.plot.suitability.suitability_figure`.
 
     Parameters
     ----------
@@ -227,62 +229,13 @@ def save_suitability(result: Suitability, out_dir: str | Path) -> dict[str, Path
     Returns
     -------
     dict
-        ``{"std", "roughness", "crlb", "crlb_mean": netCDF path, "figure": PNG path}``.
+        ``{"std", "roughness", "crlb", "crlb_mean": netCDF path}``.
     """
     from geofix.maps.io import save_grid
-    from geofix.plot.figures import save_figure
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {}
     for what in ("std", "roughness", "crlb", "crlb_mean"):
         paths[what] = save_grid(getattr(result, what), out / f"suitability_{what}.nc")
-    paths["figure"] = save_figure(suitability_figure(result), out / "suitability.png")
     return paths
-
-
-def suitability_figure(result: Suitability, crlb_range_m: tuple[float, float] | None = None):
-    """A three-panel figure: window std, roughness and the CRLB (log scale, metres).
-
-    Parameters
-    ----------
-    result : Suitability
-        The layers.
-    crlb_range_m : (float, float), optional
-        Colour range of the CRLB panel, metres (default: its 2nd..98th percentiles).
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        The figure (axes in kilometres).
-    """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import LogNorm
-
-    grid = result.crlb
-    west, east, south, north = grid.extent
-    extent = np.array([west, east, south, north]) / 1e3
-    crlb = np.where(np.isfinite(grid.values), grid.values, np.nan)
-    lo, hi = crlb_range_m or np.nanpercentile(crlb, [2, 98])
-    lo = max(float(lo), 1e-3)
-    hi = max(float(hi), 2 * lo)
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), constrained_layout=True)
-    panels = (
-        (result.std.values, None, "viridis", f"std in {result.window_cells}-cell window"),
-        (result.roughness.values, None, "magma", "roughness (adjacent-cell |diff|)"),
-        (np.clip(crlb, lo, hi), LogNorm(lo, hi), "RdYlGn_r", "CRLB of a standard track (m)"),
-    )
-    for ax, (values, norm, cmap, title) in zip(axes, panels, strict=True):
-        im = ax.imshow(values, origin="lower", extent=extent, cmap=cmap, norm=norm)
-        fig.colorbar(im, ax=ax, shrink=0.85)
-        ax.set_title(title)
-        ax.set_xlabel("x (km)")
-    axes[0].set_ylabel("y (km)")
-    fig.suptitle(
-        f"{grid.name.removesuffix('_crlb')}: suitability for matching "
-        f"(noise {result.noise_std:g} {result.std.units})"
-    )
-    return fig

@@ -13,13 +13,13 @@ from geofix.filters.base import (
     observations,
     run_filter,
 )
-from geofix.filters.measurement import (
+from geofix.filters.sitan import BankState, Sitan, SitanBank, SitanState
+from geofix.measurement import (
     Linearisation,
     linearise,
     log_likelihood,
     predict_measurements,
 )
-from geofix.filters.sitan import BankState, Sitan, SitanBank, SitanState
 
 __all__ = [
     "BankState",

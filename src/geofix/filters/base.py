@@ -23,7 +23,7 @@ from typing import ClassVar
 import numpy as np
 
 from geofix.maps.grid import Grid
-from geofix.match.base import Fix, MatchProblem
+from geofix.problem import Fix, MatchProblem
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,8 @@ r"""The bootstrap particle filter (PF): the same recursion as the PMF with weigh
   by the INS displacement plus a normal draw of per-axis variance ``Motion.process_var``
   (the bootstrap proposal: the motion prior);
 - **update**: the same measurement model as the PMF
-  (:func:`~geofix.filters.measurement.predict_measurements` at every particle, every beam,
-  :func:`~geofix.filters.measurement.log_likelihood` with off-map handling) is added to
+  (:func:`~geofix.measurement.predict_measurements` at every particle, every beam,
+  :func:`~geofix.measurement.log_likelihood` with off-map handling) is added to
   the log-weights. Weights stay in log space; the estimate is the weighted mean and
   covariance.
 
@@ -50,10 +50,9 @@ from scipy.special import logsumexp
 
 from geofix.errors import ConfigError, MatchError
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.measurement import log_likelihood, predict_measurements
 from geofix.maps.grid import Grid
-from geofix.match.base import MatchProblem
-from geofix.match.registry import register
+from geofix.measurement import log_likelihood, predict_measurements
+from geofix.problem import MatchProblem
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,7 +89,6 @@ class PfState:
         return w / w.sum()
 
 
-@register
 @dataclass(frozen=True)
 class Pf(RecursiveFilter):
     """Bootstrap particle filter settings.

@@ -8,8 +8,8 @@ position hypotheses (Bergman 1999; Anonsen & Hallingstad for HUGIN). Each sample
   of per-axis variance ``Motion.process_var`` (separable, so two 1-D passes along the grid
   axes whatever their orientation);
 - **update**: the field every beam would read from every node is taken from the map at
-  once (:func:`~geofix.filters.measurement.predict_measurements`) and the Gaussian
-  log-likelihood (:func:`~geofix.filters.measurement.log_likelihood`, off-map footprints
+  once (:func:`~geofix.measurement.predict_measurements`) and the Gaussian
+  log-likelihood (:func:`~geofix.measurement.log_likelihood`, off-map footprints
   penalised) is added to the log-weights. The variance is the sensor's plus the map's
   (``Observation.noise_var``) plus, by default, the spread of the field within one grid
   node (``discretisation_noise``; see :class:`Pmf`).
@@ -65,10 +65,9 @@ import numpy as np
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _grid_ops as ops
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.measurement import log_likelihood, predict_measurements
 from geofix.maps.grid import Grid
-from geofix.match.base import MatchProblem
-from geofix.match.registry import register
+from geofix.measurement import log_likelihood, predict_measurements
+from geofix.problem import MatchProblem
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,7 +111,6 @@ class PmfState:
         return self.log_weight.shape
 
 
-@register
 @dataclass(frozen=True)
 class Pmf(RecursiveFilter):
     """Point-mass filter settings (defaults are documented choices, see the module text).

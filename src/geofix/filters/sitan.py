@@ -45,11 +45,10 @@ import numpy as np
 
 from geofix.errors import ConfigError, MatchError
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.measurement import linearise
 from geofix.maps.grid import Grid
 from geofix.maps.terrain import plane_stencil
-from geofix.match.base import MatchProblem
-from geofix.match.registry import register
+from geofix.measurement import linearise
+from geofix.problem import MatchProblem
 
 STATE_SIZE = 5
 """Length of the SITAN error state ``[dx, dy, dh, dvx, dvy]``."""
@@ -339,7 +338,6 @@ class SitanState:
     cell_m: float = 0.0
 
 
-@register
 @dataclass(frozen=True)
 class Sitan(_EkfSettings, RecursiveFilter):
     """SITAN: one extended Kalman filter with stochastic terrain linearisation.
@@ -546,7 +544,6 @@ def bank_states(centre: np.ndarray, base_cov: np.ndarray, side: int, spacing: fl
     return x, np.tile(cov, (side * side, 1, 1))
 
 
-@register
 @dataclass(frozen=True)
 class SitanBank(_EkfSettings, RecursiveFilter):
     """The source's parallel SITAN: ``N x N`` filters, SWRS selection, shrinking re-starts.

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from geofix.errors import MatchError
-from geofix.match.base import MatchProblem, footprint_xy
+from geofix.measurement import residuals
+from geofix.problem import MatchProblem, footprint_xy
 
 
 def adaptive_spacing(depth_std: float, cell_m: float, mu1: float, mu2: float) -> float:
@@ -198,8 +199,7 @@ def translation_covariance(
     dx, dy = np.meshgrid(steps, steps)
     shifts = np.column_stack([dx.ravel(), dy.ravel()])
     tracks = track[None, :, :] + shifts[:, None, :]
-    x, y = footprint_xy(tracks, np.broadcast_to(heading, (9, len(heading))), problem.offsets[beams])
-    d = problem.grid.sample(x, y) - problem.measured[:, beams][None]
+    d = residuals(problem.grid, tracks, heading, problem.offsets[beams], problem.measured[:, beams])
     keep = np.isfinite(d).all(axis=0)
     if keep.sum() < 3:
         return None

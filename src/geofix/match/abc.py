@@ -47,13 +47,12 @@ from typing import ClassVar
 import numpy as np
 
 from geofix.errors import ConfigError, MatchError
-from geofix.match.base import Fix, MatchProblem, footprint_xy
 from geofix.match.hausdorff import batch_mean_hausdorff
-from geofix.match.registry import register
+from geofix.measurement import predict_track
+from geofix.problem import Fix, MatchProblem
 from geofix.sensors.gravimeter import compensate_first_order_lag
 
 
-@register
 @dataclass(frozen=True)
 class AbcMhd:
     """Artificial bee colony over position pairs, mean-Hausdorff screening (source 003).
@@ -260,8 +259,7 @@ class PairMisfit:
     def __call__(self, sources: np.ndarray) -> np.ndarray:
         """Misfit of ``sources`` ``(K, S, 4)`` metres; returns ``(K, S)`` map units."""
         points = sources.reshape((*sources.shape[:-1], 2, 2))  # (K, S, 2, 2)
-        x, y = footprint_xy(points, self.heading[:, None, :], self.offsets)  # (K, S, 2, b)
-        values = self.grid.sample(x, y)
+        values = predict_track(self.grid, points, self.heading[:, None, :], self.offsets)
         meas = self.measured[:, None]
         have = np.isfinite(meas)
         missing = (have & ~np.isfinite(values)).any(axis=(-1, -2))

@@ -66,9 +66,8 @@ from geofix.match._affine import (
     translation_covariance,
     window_std,
 )
-from geofix.match.base import Fix, MatchProblem
 from geofix.match.integrity import terrain_integrity
-from geofix.match.registry import register
+from geofix.problem import Fix, MatchProblem
 
 _VARIANTS = {"A": (True, True), "B": (True, False), "C": (False, True), "D": (False, False)}
 
@@ -90,7 +89,6 @@ class _Context:
     counter: list = field(default_factory=lambda: [0])
 
 
-@register
 @dataclass(frozen=True)
 class GaSca:
     """Genetic algorithm with sine-cosine refinement of the elite (source 000).

@@ -52,10 +52,10 @@ from geofix.match._affine import (
     window_std,
 )
 from geofix.match._contours import ContourMap
-from geofix.match.base import Fix, MatchProblem, footprint_xy
 from geofix.match.integrity import terrain_integrity
-from geofix.match.registry import register
 from geofix.match.rigid import rigid_transform
+from geofix.measurement import residuals
+from geofix.problem import Fix, MatchProblem, footprint_xy
 
 
 @dataclass(frozen=True)
@@ -195,7 +195,6 @@ class _IccpBase:
         )
 
 
-@register
 @dataclass(frozen=True)
 class Iccp(_IccpBase):
     """ICCP on the centre (nadir) beam.
@@ -233,7 +232,6 @@ class Iccp(_IccpBase):
         return self._run(problem, beams, np.ones(1), {})
 
 
-@register
 @dataclass(frozen=True)
 class MultipathIccp(_IccpBase):
     """Multipath parallel ICCP (Wang, Xu, Zhang 2018): three paths, one rigid transform.
@@ -280,6 +278,5 @@ min_terrain_snr
 
 def _depth_rms(problem: MatchProblem, track, heading, beams) -> float:
     """RMS of measured minus map values at the footprints of ``track`` (map units)."""
-    x, y = footprint_xy(track, heading, problem.offsets[beams])
-    d = problem.grid.sample(x, y) - problem.measured[:, beams]
+    d = residuals(problem.grid, track, heading, problem.offsets[beams], problem.measured[:, beams])
     return float(np.sqrt(np.nanmean(d**2))) if np.isfinite(d).any() else float("nan")

@@ -63,11 +63,11 @@ from scipy.spatial import cKDTree
 
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.grid import Grid
-from geofix.match.base import Fix, MatchProblem
 from geofix.match.integrity import terrain_integrity
-from geofix.match.registry import register
 from geofix.match.rigid import apply_transform, rigid_transform
 from geofix.match.tercom import Tercom
+from geofix.measurement import beam_gradients
+from geofix.problem import Fix, MatchProblem
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,7 +104,6 @@ class IcpResult:
     targets: int
 
 
-@register
 @dataclass(frozen=True)
 class Icp:
     """Point-to-point ICP of the multibeam cloud onto the map's grid points (source 001).
@@ -260,7 +259,6 @@ class Icp:
         )
 
 
-@register
 @dataclass(frozen=True)
 class TercomIcp(Icp):
     """TERCOM (MSD) coarse fix over the 6-sigma window, then ICP from it (source 001).
@@ -378,14 +376,10 @@ def _initial_offset(grid: Grid, xy: np.ndarray, h: np.ndarray) -> float:
 
 def _covariance(problem: MatchProblem, track, heading, rms: float) -> np.ndarray | None:
     """Inverse Fisher information of the final footprints, m^2 (None when singular)."""
-    fx, fy = problem.footprint(track, heading)
-    keep = np.isfinite(problem.measured).reshape(-1)
-    x, y = fx.reshape(-1)[keep], fy.reshape(-1)[keep]
-    half = 0.5 * problem.grid.cell_size
-    gx = (problem.grid.sample(x + half, y) - problem.grid.sample(x - half, y)) / (2 * half)
-    gy = (problem.grid.sample(x, y + half) - problem.grid.sample(x, y - half)) / (2 * half)
-    g = np.column_stack([gx, gy])
-    g = g[np.isfinite(g).all(axis=1)]
+    gx, gy = beam_gradients(problem.grid, track, heading, problem.offsets)
+    keep = np.isfinite(problem.measured)
+    g = np.column_stack([gx[keep], gy[keep]])
+    g = g[(g != 0).any(axis=1)]
     info = g.T @ g
     scale = max(rms, float(np.hypot(problem.noise_std, problem.map_error_std)), 1e-12)
     if g.shape[0] < 2 or np.linalg.cond(info) > 1e12:

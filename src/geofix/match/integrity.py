@@ -10,7 +10,7 @@ checks, independent of how the matcher searched:
   the matcher's ``min_terrain_snr``: 1 for TERCOM, ICCP and ICP, 0.6 for GA-SCA, whose
   rival test covers the rest) cannot be told from its neighbours and is flagged ambiguous;
 - :func:`information_covariance` -- the Cramér–Rao bound of a rigid translation of the
-  matched track (:mod:`geofix.evaluate.crlb`: map gradients at every footprint, sensor
+  matched track (:mod:`geofix.measurement`: map gradients at every footprint, sensor
   plus map-error variance), combined with the INS prior of the matching window, and
   :func:`cover_covariance`, which widens a matcher's own covariance to be no smaller than
   that bound (a Laplace approximation of a noisy residual surface can be arbitrarily
@@ -28,14 +28,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geofix.match.base import MatchProblem
+from geofix.measurement import beam_gradients, predict_track, sample_information
+from geofix.problem import MatchProblem
 
 
 def _footprint_values(problem: MatchProblem, track, heading=None, beams=None) -> np.ndarray:
     """Map values at the footprints of the measured (non-NaN) beams, NaN-free."""
     beams = np.arange(problem.offsets.shape[0]) if beams is None else np.asarray(beams)
-    fx, fy = problem.footprint(np.asarray(track, float), heading)
-    values = problem.grid.sample(fx[:, beams], fy[:, beams])
+    heading = problem.heading if heading is None else heading
+    values = predict_track(problem.grid, track, heading, problem.offsets[beams])
     values = values[np.isfinite(problem.measured[:, beams])]
     return values[np.isfinite(values)]
 
@@ -98,8 +99,6 @@ def information_covariance(
     numpy.ndarray
         ``(2, 2)`` covariance bound, m^2.
     """
-    from geofix.evaluate.crlb import beam_gradients, sample_information
-
     beams = np.arange(problem.offsets.shape[0]) if beams is None else np.asarray(beams)
     heading = problem.heading if heading is None else heading
     gx, gy = beam_gradients(problem.grid, track, heading, problem.offsets[beams])

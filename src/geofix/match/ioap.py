@@ -54,8 +54,8 @@ import numpy as np
 
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.grid import Grid
-from geofix.match.base import Fix, MatchProblem
-from geofix.match.registry import register
+from geofix.measurement import predict_track
+from geofix.problem import Fix, MatchProblem
 
 _SHAPES = ("translate", "anchor")
 
@@ -211,7 +211,6 @@ def snap_to_nodes(grid: Grid, points: np.ndarray) -> np.ndarray:
     return np.column_stack([x, y])
 
 
-@register
 @dataclass(frozen=True)
 class Ioap:
     """IOAP batch matcher (source 004): SPMP start rings, EPMP end rings, MSD.
@@ -307,8 +306,9 @@ class Ioap:
         if not np.isfinite(g1).any():
             return s1.copy()
         points = s1 + spmp_layout(sigma0, self.lam, self.theta0_deg).offsets()
-        fx, fy = problem.footprint(points[:, None, :], problem.heading[:1])
-        values = problem.grid.sample(fx[:, 0], fy[:, 0], method="nearest")
+        values = predict_track(
+            problem.grid, points[:, None, :], problem.heading[:1], problem.offsets, "nearest"
+        )[:, 0]
         misfit = np.abs(values - g1)
         ok = np.isfinite(misfit)
         misfit = np.where(ok, misfit, 0.0).sum(axis=1) / np.maximum(ok.sum(axis=1), 1)
@@ -385,8 +385,7 @@ def msd_scores(
     numpy.ndarray
         ``(k,)`` MSD in squared map units (mGal^2 for gravity); NaN when discarded.
     """
-    fx, fy = problem.footprint(tracks)
-    mapped = problem.grid.sample(fx, fy, method="nearest")
+    mapped = predict_track(problem.grid, tracks, problem.heading, problem.offsets, "nearest")
     return _msd(mapped, problem.measured, min_valid_fraction)
 
 

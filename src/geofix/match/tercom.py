@@ -32,14 +32,12 @@ import numba
 import numpy as np
 
 from geofix.errors import ConfigError, MatchError
-from geofix.match.base import Fix, MatchProblem
 from geofix.match.integrity import terrain_snr
-from geofix.match.registry import register
+from geofix.problem import Fix, MatchProblem
 
 _METRICS = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3}
 
 
-@register
 @dataclass(frozen=True)
 class Tercom:
     """TERCOM batch matcher.

@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
+    from geofix.nav.spec import DvlSpec
     from geofix.nav.trajectory import TrueTrajectory
-    from geofix.sim.scenario import DvlSpec
 
 
 def simulate_dvl(true: TrueTrajectory, spec: DvlSpec, rng: np.random.Generator) -> np.ndarray:

@@ -71,8 +71,8 @@ import numpy as np
 from scipy.linalg import expm
 
 if TYPE_CHECKING:
+    from geofix.nav.spec import InsSpec
     from geofix.nav.trajectory import TrueTrajectory
-    from geofix.sim.scenario import InsSpec
 
 GRAVITY_M_S2 = 9.80665
 """Standard gravity, m/s^2 (the ``g`` of the Schuler loop and of micro-g)."""

@@ -1,7 +1,7 @@
-"""Field sensors: echosounder beam geometry and the measurement model of every sensor.
+"""Field sensors: echosounder beam geometry and the error model of every sensor.
 
-A sensor reads the map (bilinear) at each beam's footprint along the *true* track and
-adds white noise:
+The map value at each beam's footprint (predicted by :mod:`geofix.measurement`) becomes a
+reading by :func:`add_sensor_errors`, which adds white noise:
 
 - ``singlebeam``: one beam under the vehicle, noise ``noise_std``;
 - ``multibeam``: ``beams`` beams across track; the noise 1-sigma grows linearly with the
@@ -23,12 +23,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from geofix.errors import ConfigError
-from geofix.match.base import footprint_xy
 from geofix.sensors.gravimeter import apply_first_order_lag
 
 if TYPE_CHECKING:
-    from geofix.maps.grid import Grid
-    from geofix.sim.scenario import SensorSpec
+    from geofix.sensors.spec import SensorSpec
 
 
 def sensor_offsets(spec: SensorSpec) -> np.ndarray:
@@ -93,46 +91,18 @@ def beam_noise_std(offsets: np.ndarray, spec: SensorSpec) -> np.ndarray:
     return std * (1.0 + (spec.edge_noise_factor - 1.0) * across / across.max())
 
 
-def measure_with_unlagged(
-    grid: Grid, truth, heading, offsets, spec: SensorSpec, rng: np.random.Generator, times=None
+def add_sensor_errors(
+    clean, offsets, spec: SensorSpec, rng: np.random.Generator, times=None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Sensor readings along a true track, and the same readings before the lag.
-
-    Parameters are those of :func:`measure`.
-
-    Returns
-    -------
-    tuple of numpy.ndarray
-        ``(measured, unlagged)``, each ``(n, b)`` map units; they are equal except for a
-        gravimeter with ``lag_s > 0``.
-    """
-    x, y = footprint_xy(np.asarray(truth, dtype=float), np.asarray(heading, dtype=float), offsets)
-    clean = grid.sample(x, y)
-    noise = rng.standard_normal(clean.shape) * beam_noise_std(offsets, spec)
-    map_error = rng.standard_normal(clean.shape) * spec.map_error_std
-    unlagged = clean + map_error + noise
-    if spec.type != "gravimeter" or spec.lag_s <= 0:
-        return unlagged, unlagged.copy()
-    if times is None:
-        raise ValueError("a gravimeter with a lag needs the sample times")
-    return apply_first_order_lag(unlagged, times, spec.lag_s), unlagged
-
-
-def measure(
-    grid: Grid, truth, heading, offsets, spec: SensorSpec, rng: np.random.Generator, times=None
-) -> np.ndarray:
-    """Sensor readings along a true track (see the module docstring for the model).
+    """Turn noise-free field values into sensor readings (see the module docstring).
 
     Parameters
     ----------
-    grid : Grid
-        The field the sensor sees (read with bilinear interpolation).
-    truth : array_like
-        ``(n, 2)`` true positions, metres.
-    heading : array_like
-        ``(n,)`` true heading, radians clockwise from north.
+    clean : array_like
+        ``(n, b)`` map values at the true footprints, map units.
     offsets : numpy.ndarray
-        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres.
+        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres (they set each
+        beam's noise).
     spec : SensorSpec
         Noise, map error and (gravimeter) lag.
     rng : numpy.random.Generator
@@ -142,7 +112,21 @@ def measure(
 
     Returns
     -------
-    numpy.ndarray
-        ``(n, b)`` readings in map units; NaN where a footprint is off the map.
+    tuple of numpy.ndarray
+        ``(measured, unlagged)``, each ``(n, b)`` map units; they are equal except for a
+        gravimeter with ``lag_s > 0``.
+
+    Raises
+    ------
+    ValueError
+        A gravimeter with a lag and no sample times.
     """
-    return measure_with_unlagged(grid, truth, heading, offsets, spec, rng, times)[0]
+    clean = np.asarray(clean, dtype=float)
+    noise = rng.standard_normal(clean.shape) * beam_noise_std(offsets, spec)
+    map_error = rng.standard_normal(clean.shape) * spec.map_error_std
+    unlagged = clean + map_error + noise
+    if spec.type != "gravimeter" or spec.lag_s <= 0:
+        return unlagged, unlagged.copy()
+    if times is None:
+        raise ValueError("a gravimeter with a lag needs the sample times")
+    return apply_first_order_lag(unlagged, times, spec.lag_s), unlagged

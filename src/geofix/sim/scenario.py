@@ -14,6 +14,10 @@ never renamed. Example::
           accel_noise_ug_rt_hz: 0}
     trials: 100
     seed: 1
+
+The sensor, INS and DVL blocks are the specifications of their own layers
+(:class:`geofix.sensors.spec.SensorSpec`, :class:`geofix.nav.spec.InsSpec`,
+:class:`geofix.nav.spec.DvlSpec`), importable from here too.
 """
 
 from __future__ import annotations
@@ -22,16 +26,27 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator
 
+from geofix._strict import Strict
 from geofix.errors import ConfigError
+from geofix.nav.spec import DvlSpec, InsSpec
+from geofix.sensors.spec import SensorSpec
+
+__all__ = [
+    "DvlSpec",
+    "InsSpec",
+    "MapSpec",
+    "Scenario",
+    "SensorSpec",
+    "TrackSpec",
+    "builtin_scenario_path",
+    "load_scenario",
+    "scenario_from_dict",
+]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class MapSpec(_Strict):
+class MapSpec(Strict):
     """Which map, and how to prepare it.
 
     ``path`` is relative to the scenario file, or ``builtin:NAME`` for a bundled map.
@@ -46,7 +61,7 @@ class MapSpec(_Strict):
     resample_m: float | None = Field(default=None, gt=0)
 
 
-class TrackSpec(_Strict):
+class TrackSpec(Strict):
     """The true trajectory: ``samples`` per leg, ``legs`` legs, a random turn between legs.
 
     ``start_cell`` is ``[column, row]`` of the prepared map (row 0 at the south edge);
@@ -65,54 +80,7 @@ class TrackSpec(_Strict):
     turn_std_deg: float = Field(default=0.0, ge=0)
 
 
-class SensorSpec(_Strict):
-    """The field sensor.
-
-    ``singlebeam``: depth under the vehicle. ``multibeam``: ``beams`` beams across a swath
-    of ``swath_width_m`` metres (or ``swath_angle_deg`` with ``altitude_m``), noise growing
-    to ``edge_noise_factor`` times ``noise_std`` at the outer beams. ``gravimeter``: a
-    first-order lag of ``lag_s`` seconds (0 = none).
-    """
-
-    type: Literal["singlebeam", "multibeam", "gravimeter"]
-    noise_std: float = Field(default=0.0, ge=0)
-    beams: int = Field(default=1, ge=1)
-    swath_width_m: float | None = Field(default=None, gt=0)
-    swath_angle_deg: float | None = Field(default=None, gt=0, lt=180)
-    altitude_m: float | None = Field(default=None, gt=0)
-    edge_noise_factor: float = Field(default=2.0, ge=1)
-    lag_s: float = Field(default=0.0, ge=0)
-    map_error_std: float = Field(default=0.0, ge=0)
-
-
-class InsSpec(_Strict):
-    """INS datasheet numbers (see :mod:`geofix.nav.ins` for how they are integrated).
-
-    ``initial_error_m`` is a fixed ``[east, north]`` offset of the indicated start;
-    ``initial_error_std_m`` adds a random per-axis Gaussian offset per trial.
-    ``prior_sigma_m`` overrides the prior 1-sigma handed to the matchers.
-    """
-
-    initial_error_m: tuple[float, float] = (0.0, 0.0)
-    initial_error_std_m: float = Field(default=0.0, ge=0)
-    velocity_error_m_s: float = Field(default=0.0, ge=0)
-    heading_error_deg: float = 0.0
-    gyro_bias_deg_h: float = Field(default=0.0, ge=0)
-    gyro_noise_deg_rt_h: float = Field(default=0.0, ge=0)
-    accel_bias_ug: float = Field(default=0.0, ge=0)
-    accel_noise_ug_rt_hz: float = Field(default=0.0, ge=0)
-    schuler: bool = True
-    prior_sigma_m: float | None = Field(default=None, gt=0)
-
-
-class DvlSpec(_Strict):
-    """Doppler velocity log: per-axis white noise and a constant bias, m/s."""
-
-    noise_std_m_s: float = Field(default=0.01, ge=0)
-    bias_m_s: float = Field(default=0.0, ge=0)
-
-
-class Scenario(_Strict):
+class Scenario(Strict):
     """A validated scenario. Build with :func:`load_scenario` or ``Scenario(**dict)``."""
 
     name: str

@@ -15,12 +15,13 @@ import numpy as np
 
 from geofix.errors import ConfigError, TrackOffMapError
 from geofix.maps.grid import Grid
-from geofix.match.base import footprint_xy
 from geofix.nav.dvl import simulate_dvl
 from geofix.nav.ins import position_sigma, simulate_ins
 from geofix.nav.trajectory import TrueTrajectory, true_trajectory
-from geofix.sensors.echosounder import beam_noise_std, measure_with_unlagged, sensor_offsets
+from geofix.problem import footprint_xy
+from geofix.sensors.echosounder import beam_noise_std, sensor_offsets
 from geofix.sim.scenario import Scenario
+from geofix.sim.sensing import measure_with_unlagged
 from geofix.sim.trial import Trial
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geofix.maps.grid import Grid
-from geofix.match.base import MatchProblem, check_beam_noise_std
+from geofix.problem import MatchProblem, check_beam_noise_std
 
 _TRUTH_PREFIXES = ("true_", "unlagged_")
 

@@ -1,36 +1,58 @@
-"""Method registry and method specifications (``"tercom:metric=mad,window_sigma=3"``).
+"""The method registry and method specifications (``"tercom:metric=mad,window_sigma=3"``).
 
 Every method is a dataclass whose fields are its settings, with defaults from its
-source; ``register`` adds it under its ``name``. A specification string names a method
-and optionally overrides settings; values are converted to the type of the default.
+source. This module sits above both the batch matchers (:mod:`geofix.match`) and the
+recursive filters (:mod:`geofix.filters`) and lists their classes; :func:`register` adds
+a method of one's own under its ``name``. A specification string names a method and
+optionally overrides settings; values are converted to the type of the default.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import typing
 
 from geofix.errors import ConfigError
+from geofix.filters.pf import Pf
+from geofix.filters.pmf import Pmf
+from geofix.filters.sitan import Sitan, SitanBank
+from geofix.match.abc import AbcMhd
+from geofix.match.ga_sca import GaSca
+from geofix.match.iccp import Iccp, MultipathIccp
+from geofix.match.icp import Icp, TercomIcp
+from geofix.match.ioap import Ioap
+from geofix.match.tercom import Tercom
 
-_REGISTRY: dict[str, type] = {}
-
-# Modules that register methods when imported; later issues add theirs here.
-_METHOD_MODULES = (
-    "geofix.match.tercom",
-    "geofix.match.iccp",
-    "geofix.match.ga_sca",
-    "geofix.match.icp",
-    "geofix.match.abc",
-    "geofix.match.ioap",
-    "geofix.filters.sitan",
-    "geofix.filters.pmf",
-    "geofix.filters.pf",
+#: The methods geofix ships: batch matchers first, then the recursive filters.
+BUILTIN_METHODS: tuple[type, ...] = (
+    Tercom,
+    Iccp,
+    MultipathIccp,
+    GaSca,
+    Icp,
+    TercomIcp,
+    AbcMhd,
+    Ioap,
+    Sitan,
+    SitanBank,
+    Pmf,
+    Pf,
 )
+
+_REGISTRY: dict[str, type] = {cls.name: cls for cls in BUILTIN_METHODS}
 
 
 def register(cls: type) -> type:
-    """Class decorator: register a method dataclass under ``cls.name``."""
+    """Class decorator: register a method dataclass of one's own under ``cls.name``.
+
+    The class needs a ``name``, a ``recursive`` flag and ``match(problem, rng) -> Fix``
+    (:class:`geofix.problem.Matcher`); its dataclass fields are its settings.
+
+    Raises
+    ------
+    TypeError
+        ``cls`` is not a dataclass.
+    """
     if not dataclasses.is_dataclass(cls):
         raise TypeError(f"{cls.__name__} must be a dataclass to be registered")
     _REGISTRY[cls.name] = cls
@@ -38,13 +60,7 @@ def register(cls: type) -> type:
 
 
 def available_methods() -> dict[str, type]:
-    """All registered methods, by name (importing the method modules that exist)."""
-    for module in _METHOD_MODULES:
-        try:
-            importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name != module:
-                raise
+    """All registered methods, by name."""
     return dict(sorted(_REGISTRY.items()))
 
 

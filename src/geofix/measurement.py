@@ -1,0 +1,269 @@
+"""The one measurement model: prediction, residuals, likelihood, linearisation, information.
+
+A sensor reading is the map ``h`` read at a beam's footprint plus noise. Everything in
+geofix that predicts a reading calls this module: the simulator
+(:mod:`geofix.sim.sensing` adds noise and lag to :func:`predict_track`), every batch
+matcher (:func:`predict_track`, :func:`residuals`), every recursive filter
+(:func:`predict_measurements` on many hypotheses, :func:`log_likelihood`,
+:func:`linearise`) and every bound (:func:`beam_gradients`, :func:`sample_information`).
+
+- Prediction: the bilinear (or nearest-node) map read at every footprint
+  (:func:`geofix.problem.footprint_xy`), NaN off the map and on no-data.
+- Likelihood: independent Gaussian beams of variance sensor noise plus map error.
+- Linearisation (SITAN): slopes of a least-squares plane fitted over a patch the size of
+  the position uncertainty (stochastic terrain linearisation).
+- Information: the Fisher information of a sample about the vehicle position,
+  ``sum_b g g^T / var_b`` with ``g`` the map gradient at each footprint.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import map_coordinates
+
+from geofix.maps.grid import Grid
+from geofix.maps.terrain import gradient, plane_fit
+from geofix.problem import footprint_xy
+
+OFF_MAP_LOG_LIKELIHOOD = -1e6
+"""Log-likelihood per beam of a hypothesis whose footprint is off the map (finite, so a
+filter whose every hypothesis is off the map stays defined)."""
+
+
+def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offsets) -> np.ndarray:
+    """Field values every beam would read from ``positions``.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    positions : numpy.ndarray
+        ``(..., 2)`` hypothesised vehicle positions, metres.
+    heading : float
+        Heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets, metres.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(..., b)`` predicted values; NaN off the map and wherever a cell of the bilinear
+        stencil is NaN (as :meth:`Grid.sample`), computed with
+        ``scipy.ndimage.map_coordinates`` for speed on large hypothesis sets.
+    """
+    positions = np.asarray(positions, dtype=float)
+    offsets = np.asarray(offsets, dtype=float)
+    # The beam offsets in metres are the same for every hypothesis: add them in cells.
+    ox, oy = footprint_xy(np.zeros(2), np.asarray(heading, dtype=float), offsets)
+    col, row = grid.xy_to_cell(positions[..., 0].ravel(), positions[..., 1].ravel())
+    coords = np.empty((2, col.size, offsets.shape[0]))
+    np.add(row[:, None], oy / grid.dy, out=coords[0])
+    np.add(col[:, None], ox / grid.dx, out=coords[1])
+    out = map_coordinates(
+        grid.values, coords.reshape(2, -1), order=1, mode="constant", cval=np.nan, prefilter=False
+    )
+    return out.reshape(*positions.shape[:-1], offsets.shape[0])
+
+
+def predict_track(grid: Grid, track, heading, offsets, method: str = "bilinear") -> np.ndarray:
+    """Field values every beam reads along one or many tracks.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    track : array_like
+        ``(..., n, 2)`` vehicle positions, metres.
+    heading : array_like
+        ``(..., n)`` headings, radians clockwise from north (broadcast against ``track``).
+    offsets : array_like
+        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres.
+    method : {"bilinear", "nearest"}
+        The map read (:meth:`Grid.sample`).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(..., n, b)`` predicted values, map units; NaN off the map and on no-data.
+    """
+    x, y = footprint_xy(
+        np.asarray(track, dtype=float), np.asarray(heading, dtype=float), np.asarray(offsets)
+    )
+    return grid.sample(x, y, method=method)
+
+
+def residuals(grid: Grid, track, heading, offsets, measured, method: str = "bilinear"):
+    """Predicted minus measured values along one or many tracks.
+
+    Parameters are those of :func:`predict_track`, plus ``measured`` ``(n, b)`` (map
+    units, NaN = missing), broadcast against the prediction.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(..., n, b)`` residuals, map units; NaN where a beam is missing or off the map.
+    """
+    return predict_track(grid, track, heading, offsets, method) - np.asarray(measured)
+
+
+def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var) -> np.ndarray:
+    """Gaussian log-likelihood of the measured beams for every hypothesis.
+
+    Parameters
+    ----------
+    predicted : numpy.ndarray
+        ``(..., b)`` predicted values (NaN off the map).
+    measured : numpy.ndarray
+        ``(b,)`` measured values (NaN = missing beam, ignored).
+    noise_var : float or numpy.ndarray
+        Measurement variance (sensor + map error), map units squared: one value for
+        every beam or ``(b,)`` per beam (each beam's squared residual is divided by its
+        own variance).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(...)`` log-likelihoods up to a constant; off-map beams cost
+        :data:`OFF_MAP_LOG_LIKELIHOOD` each.
+    """
+    use = np.isfinite(measured)
+    if not use.any():
+        return np.zeros(predicted.shape[:-1])
+    var = np.broadcast_to(np.asarray(noise_var, dtype=float), measured.shape)
+    d = predicted[..., use] - measured[use]
+    ll = -0.5 * d**2 / var[use]
+    ll = np.where(np.isfinite(ll), ll, OFF_MAP_LOG_LIKELIHOOD)
+    return ll.sum(axis=-1)
+
+
+@dataclass(frozen=True)
+class Linearisation:
+    """Local linear model of the field around an estimate, one row per beam.
+
+    ``predicted`` ``(b,)`` values read at the estimate; ``slopes`` ``(b, 2)`` field units
+    per metre along x and y; ``fit_var`` ``(b,)`` residual variance of the plane fits
+    (added to the measurement noise as linearisation error).
+    """
+
+    predicted: np.ndarray
+    slopes: np.ndarray
+    fit_var: np.ndarray
+
+
+def linearise(grid: Grid, position, heading: float, offsets, half_width_m: float) -> Linearisation:
+    """Stochastic terrain linearisation at every beam's footprint.
+
+    A least-squares plane is fitted to the map over a square patch of half-width
+    ``half_width_m`` (the position uncertainty, metres; at least one cell) around each
+    footprint; its slopes form the rows of the measurement Jacobian.
+
+    ``position`` is ``(2,)`` (one estimate: arrays ``(b,)`` / ``(b, 2)``) or ``(..., 2)``
+    (several estimates at once, same heading and patch: arrays ``(..., b)`` / ``(..., b, 2)``).
+    """
+    pos = np.asarray(position, dtype=float)[..., None, :]
+    x, y = footprint_xy(pos, np.full(pos.shape[:-1], heading), np.asarray(offsets, dtype=float))
+    x, y = x[..., 0, :], y[..., 0, :]
+    fit = plane_fit(grid, x, y, max(half_width_m, grid.cell_size))
+    slopes = np.stack([fit.slope_x, fit.slope_y], axis=-1)
+    return Linearisation(
+        predicted=grid.sample(x, y),
+        slopes=slopes,
+        fit_var=np.asarray(fit.residual_std, dtype=float) ** 2,
+    )
+
+
+# --------------------------------------------------------------------------- information
+@functools.lru_cache(maxsize=4)
+def gradient_grids(grid: Grid) -> tuple[Grid, Grid]:
+    """The map's gradient along x and y as two grids (NaN where it cannot be formed).
+
+    Parameters
+    ----------
+    grid : Grid
+        The map (cached by identity: a campaign worker computes it once).
+
+    Returns
+    -------
+    tuple of Grid
+        ``(gx, gy)`` in field units per metre, on the map's cells (central differences,
+        :func:`geofix.maps.terrain.gradient`).
+    """
+    gx, gy = gradient(grid)
+    return grid.with_values(gx), grid.with_values(gy)
+
+
+def beam_gradients(grid: Grid, track, heading, offsets) -> tuple[np.ndarray, np.ndarray]:
+    """Map gradient at every beam footprint of a track.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    track : array_like
+        ``(n, 2)`` vehicle positions, metres.
+    heading : array_like
+        ``(n,)`` headings, radians clockwise from north.
+    offsets : array_like
+        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(gx, gy)`` each ``(n, b)``, field units per metre; 0 where no gradient exists.
+    """
+    gxg, gyg = gradient_grids(grid)
+    gx = np.nan_to_num(predict_track(gxg, track, heading, offsets), nan=0.0)
+    gy = np.nan_to_num(predict_track(gyg, track, heading, offsets), nan=0.0)
+    return gx, gy
+
+
+def sample_information(gx, gy, beam_var, valid=None) -> np.ndarray:
+    """Fisher information of each sample about the vehicle position.
+
+    Parameters
+    ----------
+    gx, gy : array_like
+        ``(n, b)`` map gradients at the footprints, field units per metre.
+    beam_var : float or array_like
+        Measurement variance, field units squared: a scalar or ``(b,)`` per beam.
+    valid : array_like of bool, optional
+        ``(n, b)``; False for a missing measurement (it carries no information).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, 2, 2)`` information matrices, 1/m^2.
+    """
+    gx = np.asarray(gx, float)
+    gy = np.asarray(gy, float)
+    w = np.broadcast_to(1.0 / np.asarray(beam_var, float), gx.shape)
+    if valid is not None:
+        w = np.where(valid, w, 0.0)
+    sxx = (w * gx * gx).sum(axis=-1)
+    sxy = (w * gx * gy).sum(axis=-1)
+    syy = (w * gy * gy).sum(axis=-1)
+    return np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
+
+
+def inverse_trace(info: np.ndarray) -> np.ndarray:
+    """``trace(J^-1)`` of 2 x 2 information matrices, ``inf`` where singular.
+
+    Parameters
+    ----------
+    info : numpy.ndarray
+        ``(..., 2, 2)`` symmetric positive semi-definite matrices, 1/m^2.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(...)`` traces of the inverses, m^2 (``trace / det``).
+    """
+    info = np.asarray(info, float)
+    trace = info[..., 0, 0] + info[..., 1, 1]
+    det = info[..., 0, 0] * info[..., 1, 1] - info[..., 0, 1] * info[..., 1, 0]
+    singular = det <= 1e-12 * np.maximum(trace, 1e-300) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(singular, np.inf, trace / np.where(singular, 1.0, det))
