@@ -46,24 +46,27 @@ def md_table(header: list[str], rows: list[list]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def summary_rows(summary: dict, success_keys=("20", "40", "60", "80", "100")) -> list[list]:
-    """Rows of method, mean/std/median/max end error, success rates, time per match."""
+def summary_rows(methods: dict, success_keys=("20", "40", "60", "80", "100")) -> list[list]:
+    """Rows of method, mean/std/median/max end error, success rates, time per match.
+
+    ``methods`` is ``{spec: MethodStats}`` (a campaign summary's ``methods``, or a part).
+    """
     rows = []
-    for spec, m in summary["methods"].items():
+    for spec, m in methods.items():
         rates = [
-            fmt(100 * m["success_rate"][k], 0) if m["success_rate"].get(k) is not None else "-"
+            fmt(100 * m.success_rate[k], 0) if m.success_rate.get(k) is not None else "-"
             for k in success_keys
         ]
         rows.append(
             [
                 f"`{spec}`",
-                fmt(m["mean_error_m"]),
-                fmt(m["std_error_m"]),
-                fmt(m["median_error_m"]),
-                fmt(m["max_error_m"]),
+                fmt(m.mean_error_m),
+                fmt(m.std_error_m),
+                fmt(m.median_error_m),
+                fmt(m.max_error_m),
                 *rates,
-                fmt(m["mean_time_s"] * 1e3, 1),
-                m["failures"],
+                fmt(m.mean_time_s * 1e3, 1),
+                m.failures,
             ]
         )
     return rows

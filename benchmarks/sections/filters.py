@@ -82,13 +82,13 @@ def _method_stats(result, scen) -> dict:
     cell = prepare_map(scen).cell_size
     frame, summary = result.frame, result.summary
     out = {}
-    for spec in summary["methods"]:
+    for spec in summary.methods:
         rows = frame[frame["method"] == spec]
         failed = rows["failed"].astype(bool).to_numpy()
         ok = rows[~failed]
         e = ok["end_error_m"].to_numpy(dtype=float)
         amb = ok["ambiguous"].astype(bool).to_numpy()
-        ffr = summary["methods"][spec].get("false_fix_rate")
+        ffr = summary.methods[spec].false_fix_rate
         if ffr is None:  # older summaries: far (> 3 cells) and not flagged
             ffr = np.count_nonzero((e > 3 * cell) & ~amb) / max(len(rows), 1)
         out[spec] = {
@@ -112,7 +112,7 @@ def _crlb(result, scen, trials: int) -> float | None:
     position error, such as source 004, has a zero prior variance, for which the
     recursion's ``1 / sigma_0^2`` is undefined; the floor means a perfectly known start).
     """
-    value = result.summary.get("crlb_m")
+    value = result.summary.crlb_m
     if value is not None:
         return float(value)
     try:
@@ -193,7 +193,7 @@ def _scenario_table(label: str, trials: int, stats: dict, crlb: float | None) ->
                 fmt(100 * s["false_fix"], 0),
                 fmt(100 * s["ambiguous"], 0),
                 fmt(s["time"] * 1e3, 1),
-                s["failures"],
+                s.failures,
             ]
         )
     bound = f"{fmt(crlb, 1)} m" if crlb else "not available"
@@ -222,7 +222,7 @@ def _peer_table(label: str, peers: dict) -> str:
                     name,
                     fmt(_rms(rec["end_errors"]), 1),
                     fmt(rec["times"].mean(), 3),
-                    rec["failures"],
+                    rec.failures,
                     note,
                 ]
             )

@@ -49,7 +49,7 @@ def _figure(scen, result) -> str:
 
 
 def _mean_ms(result, spec: str) -> float:
-    return result.summary["methods"][spec]["mean_time_s"] * 1e3
+    return result.summary.methods[spec].mean_time_s * 1e3
 
 
 def build(quick: bool = False) -> str:
@@ -57,7 +57,7 @@ def build(quick: bool = False) -> str:
     scen = _demo_scenario()
     result = campaign(scen, METHODS, trials=10 if quick else scen.trials)
     keys = ("100", "0.5c", "1c", "2c")
-    table = md_table(summary_header(keys), summary_rows(result.summary, keys))
+    table = md_table(summary_header(keys), summary_rows(result.summary.methods, keys))
     t_numba, t_numpy = _timing()
     fig = _figure(scen, result)
     ins = result.frame.groupby("method")["end_error_m"].count().iloc[0]

@@ -72,7 +72,7 @@ def _bundled_scenarios(quick: bool) -> list:
 
 
 def _rms(stats: dict) -> float | None:
-    mean, std = stats["mean_error_m"], stats["std_error_m"]
+    mean, std = stats.mean_error_m, stats.std_error_m
     return None if mean is None else math.hypot(mean, std)
 
 
@@ -83,18 +83,18 @@ def _bounds_part(trials: int, quick: bool) -> str:
     rows, ratios = [], []
     for scen in _bundled_scenarios(quick):
         summary = campaign(scen, methods, trials=trials, jobs=2).summary
-        stats = summary["methods"]
+        stats = summary.methods
         rms = {m: _rms(stats[m]) for m in methods}
-        if "pmf" in rms and rms["pmf"] and summary["crlb_m"]:
-            ratios.append((scen.name, rms["pmf"] / summary["crlb_m"]))
+        if "pmf" in rms and rms["pmf"] and summary.crlb_m:
+            ratios.append((scen.name, rms["pmf"] / summary.crlb_m))
         rows.append(
             [
                 f"`{scen.name}`",
                 scen.sensor.type,
-                fmt(summary["crlb_m"], 1),
-                fmt(summary["crlb_batch_m"], 1),
+                fmt(summary.crlb_m, 1),
+                fmt(summary.crlb_batch_m, 1),
                 *[fmt(rms[m], 1) for m in methods],
-                " / ".join(fmt(100 * (stats[m]["false_fix_rate"] or 0), 0) for m in methods),
+                " / ".join(fmt(100 * (stats[m].false_fix_rate or 0), 0) for m in methods),
             ]
         )
     header = [
@@ -146,23 +146,23 @@ def _navo_part(trials: int) -> str:
             )
         frame = result.frame
         for spec in methods:
-            s = result.summary["methods"][spec]
+            s = result.summary.methods[spec]
             rows_m = frame[frame["method"] == spec]
             covered = np.mean(rows_m["end_mahalanobis"].to_numpy(float) <= 3.0)
             rows.append(
                 [
                     f"`{spec}`",
                     sensor,
-                    fmt(100 * s["ambiguous_rate"], 0),
-                    fmt(100 * s["false_fix_rate"], 0),
-                    fmt(s["mean_error_m"], 1),
+                    fmt(100 * s.ambiguous_rate, 0),
+                    fmt(100 * s.false_fix_rate, 0),
+                    fmt(s.mean_error_m, 1),
                     fmt(100 * covered, 0),
-                    s["failures"],
+                    s.failures,
                 ]
             )
-            if s["false_fix_rate"] and s["false_fix_rate"] > 0.1:
-                failing.append(f"`{spec}` ({sensor}, {100 * s['false_fix_rate']:.0f} %)")
-        crlb = result.summary["crlb_m"]
+            if s.false_fix_rate and s.false_fix_rate > 0.1:
+                failing.append(f"`{spec}` ({sensor}, {100 * s.false_fix_rate:.0f} %)")
+        crlb = result.summary.crlb_m
     header = [
         "method",
         "sensor",

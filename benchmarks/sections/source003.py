@@ -82,7 +82,7 @@ def _intro(trials: int, methods: list[str]) -> str:
     )
 
 
-def _table(summary: dict) -> str:
+def _table(summary) -> str:
     header = [
         "method",
         "track mean (m)",
@@ -94,27 +94,27 @@ def _table(summary: dict) -> str:
         "failures",
     ]
     rows = []
-    for spec, m in summary["methods"].items():
-        rates = [fmt(100 * (m["success_rate"].get(k) or 0.0), 0) for k in SUCCESS]
+    for spec, m in summary.methods.items():
+        rates = [fmt(100 * (m.success_rate.get(k) or 0.0), 0) for k in SUCCESS]
         rows.append(
             [
                 f"`{spec}`",
-                fmt(m["mean_track_error_m"], 1),
-                fmt(m["mean_error_m"], 1),
-                fmt(m["std_error_m"], 1),
-                fmt(m["max_error_m"], 1),
+                fmt(m.mean_track_error_m, 1),
+                fmt(m.mean_error_m, 1),
+                fmt(m.std_error_m, 1),
+                fmt(m.max_error_m, 1),
                 *rates,
-                fmt(1e3 * m["mean_time_s"], 1),
-                m["failures"],
+                fmt(1e3 * m.mean_time_s, 1),
+                m.failures,
             ]
         )
     return md_table(header, rows)
 
 
-def _verdict(summary: dict, ins_track: float) -> str:
-    methods = summary["methods"]
-    abc = methods.get("abc-mhd", {}).get("mean_track_error_m")
-    ter = methods.get("tercom", {}).get("mean_track_error_m")
+def _verdict(summary, ins_track: float) -> str:
+    methods = summary.methods
+    abc = methods.get("abc-mhd", {}).mean_track_error_m
+    ter = methods.get("tercom", {}).mean_track_error_m
     if abc is None or ter is None:
         return "\n_Not enough results for a verdict._\n"
     diff = ter - abc
@@ -161,10 +161,10 @@ def _lag_text() -> str:
     )
 
 
-def _lag_verdict(summary: dict) -> str:
-    methods = summary["methods"]
-    raw = methods.get("abc-mhd", {}).get("mean_track_error_m")
-    comp = methods.get(f"abc-mhd:lag_s={LAG_S}", {}).get("mean_track_error_m")
+def _lag_verdict(summary) -> str:
+    methods = summary.methods
+    raw = methods.get("abc-mhd", {}).mean_track_error_m
+    comp = methods.get(f"abc-mhd:lag_s={LAG_S}", {}).mean_track_error_m
     if raw is None or comp is None:
         return "\n_Not enough results for a verdict._\n"
     word = "lowers" if comp < raw else "does not lower"

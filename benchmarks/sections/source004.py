@@ -116,37 +116,36 @@ def _candidates(result) -> dict:
 
 
 def _table(result, methods: list[str]) -> str:
-    summary = {"methods": {m: result.summary["methods"][m] for m in methods}}
-    rows = summary_rows(summary, LEVELS)
+    rows = summary_rows({m: result.summary.methods[m] for m in methods}, LEVELS)
     cands = _candidates(result)
     rows = [[*r, fmt(cands.get(m), 0)] for r, m in zip(rows, methods, strict=True)]
     return md_table([*summary_header(LEVELS), "candidates"], rows)
 
 
-def _stats(summary: dict, method: str) -> dict:
-    return summary["methods"][method]
+def _stats(summary, method: str):
+    return summary.methods[method]
 
 
-def _test1_verdict(summary: dict) -> str:
+def _test1_verdict(summary) -> str:
     ter, s1, s2, s3 = (_stats(summary, m) for m in TEST1)
-    beats = s3["mean_error_m"] < ter["mean_error_m"] and s3["max_error_m"] < ter["max_error_m"]
-    ratio2 = s2["mean_time_s"] / ter["mean_time_s"]
-    ratio3 = s3["mean_time_s"] / ter["mean_time_s"]
-    rank = sorted(TEST1, key=lambda m: _stats(summary, m)["mean_error_m"])
+    beats = s3.mean_error_m < ter.mean_error_m and s3.max_error_m < ter.max_error_m
+    ratio2 = s2.mean_time_s / ter.mean_time_s
+    ratio3 = s3.mean_time_s / ter.mean_time_s
+    rank = sorted(TEST1, key=lambda m: _stats(summary, m).mean_error_m)
     return (
         f"\nRanking by mean error: {', '.join(f'`{m}`' for m in rank)}. "
         f"3-sigma-IOAP {'beats' if beats else 'does not beat'} TERCOM on both mean and worst "
-        f"error ({fmt(s3['mean_error_m'], 1)} / {fmt(s3['max_error_m'], 0)} m against "
-        f"{fmt(ter['mean_error_m'], 1)} / {fmt(ter['max_error_m'], 0)} m; the source says it "
-        f"does). Success at 100 m: 2-sigma-IOAP {fmt(100 * s2['success_rate']['100'], 0)} %, "
-        f"TERCOM {fmt(100 * ter['success_rate']['100'], 0)} % (source: 88 % and 82 %); "
-        f"1-sigma-IOAP {fmt(100 * s1['success_rate']['100'], 0)} % (the source also finds it "
+        f"error ({fmt(s3.mean_error_m, 1)} / {fmt(s3.max_error_m, 0)} m against "
+        f"{fmt(ter.mean_error_m, 1)} / {fmt(ter.max_error_m, 0)} m; the source says it "
+        f"does). Success at 100 m: 2-sigma-IOAP {fmt(100 * s2.success_rate['100'], 0)} %, "
+        f"TERCOM {fmt(100 * ter.success_rate['100'], 0)} % (source: 88 % and 82 %); "
+        f"1-sigma-IOAP {fmt(100 * s1.success_rate['100'], 0)} % (the source also finds it "
         f"worse than TERCOM). Time per match relative to TERCOM: 2-sigma "
         f"{fmt(ratio2, 2)}x, 3-sigma {fmt(ratio3, 2)}x (source: about 0.5x and about 1x); "
         "IOAP scores far fewer candidates than TERCOM at 2 sigma and somewhat fewer at 3 "
         "sigma, as in the source, each a cheaper nearest-node read (TERCOM reads "
         "bilinearly). TERCOM succeeds "
-        f"{fmt(100 * ter['success_rate']['40'], 0)} % of the time within 40 m "
+        f"{fmt(100 * ter.success_rate['40'], 0)} % of the time within 40 m "
         "(the source: never): its lattice of whole-cell translations is as fine as IOAP's "
         "nodes. IOAP's larger worst errors come from runs whose true offset lies in a corner "
         "of TERCOM's square, outside the disc, and from nearest-node map reads (TERCOM reads "
@@ -154,9 +153,9 @@ def _test1_verdict(summary: dict) -> str:
     )
 
 
-def _test2_verdict(summary: dict) -> str:
-    rank = sorted(TEST2, key=lambda m: _stats(summary, m)["mean_error_m"])
-    times = ", ".join(f"`{m}` {fmt(_stats(summary, m)['mean_time_s'] * 1e3, 1)} ms" for m in TEST2)
+def _test2_verdict(summary) -> str:
+    rank = sorted(TEST2, key=lambda m: _stats(summary, m).mean_error_m)
+    times = ", ".join(f"`{m}` {fmt(_stats(summary, m).mean_time_s * 1e3, 1)} ms" for m in TEST2)
     same = rank == ["ioap:reference=2.5", "ioap:reference=2", "ioap", "ioap:reference=1"]
     return (
         f"\nRanking by mean error: {', '.join(f'`{m}`' for m in rank)} (source: 2.5, 2, "
@@ -173,20 +172,20 @@ def _test3(starts: dict) -> str:
     rows = []
     for label, result in starts.items():
         ter, ioap = _stats(result.summary, "tercom"), _stats(result.summary, "ioap")
-        gain_mean = 100 * (1 - ioap["mean_error_m"] / ter["mean_error_m"])
-        gain_max = 100 * (1 - ioap["max_error_m"] / ter["max_error_m"])
+        gain_mean = 100 * (1 - ioap.mean_error_m / ter.mean_error_m)
+        gain_max = 100 * (1 - ioap.max_error_m / ter.max_error_m)
         src_mean, src_max = SOURCE_TEST3[label]
         for spec, m in (("tercom", ter), ("ioap", ioap)):
-            rates = [fmt(100 * m["success_rate"][k], 0) for k in LEVELS]
+            rates = [fmt(100 * m.success_rate[k], 0) for k in LEVELS]
             rows.append(
                 [
                     label,
                     f"`{spec}`",
-                    fmt(m["mean_error_m"], 1),
-                    fmt(m["std_error_m"], 1),
-                    fmt(m["max_error_m"], 0),
+                    fmt(m.mean_error_m, 1),
+                    fmt(m.std_error_m, 1),
+                    fmt(m.max_error_m, 0),
                     *rates,
-                    fmt(m["mean_time_s"] * 1e3, 1),
+                    fmt(m.mean_time_s * 1e3, 1),
                     (
                         f"{fmt(gain_mean, 1)} / {fmt(gain_max, 1)} (source {src_mean} / {src_max})"
                         if spec == "ioap"
@@ -211,18 +210,18 @@ def _test3(starts: dict) -> str:
     )
 
 
-def _drift_verdict(summary: dict) -> str:
+def _drift_verdict(summary) -> str:
     ter, anchor = _stats(summary, "tercom"), _stats(summary, "ioap:track_shape=anchor")
     return (
         "\nWith the drift growing along the track, every translation-only method (TERCOM "
         f"and the source's IOAP) misses by about the drift itself (TERCOM mean "
-        f"{fmt(ter['mean_error_m'], 0)} m). Anchoring the candidate track at the start fix "
+        f"{fmt(ter.mean_error_m, 0)} m). Anchoring the candidate track at the start fix "
         "(our extension; the start error is zero here) absorbs most of the bend: mean "
-        f"{fmt(anchor['mean_error_m'], 0)} m, worst {fmt(anchor['max_error_m'], 0)} m.\n"
+        f"{fmt(anchor.mean_error_m, 0)} m, worst {fmt(anchor.max_error_m, 0)} m.\n"
     )
 
 
-def _figure(summary: dict) -> str:
+def _figure(summary) -> str:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -237,7 +236,7 @@ def _figure(summary: dict) -> str:
     ):
         width = 16 / len(methods)
         for i, method in enumerate(methods):
-            rates = [100 * summary["methods"][method]["success_rate"][k] for k in LEVELS]
+            rates = [100 * summary.methods[method].success_rate[k] for k in LEVELS]
             ax.bar(
                 np.array(levels) + (i - (len(methods) - 1) / 2) * width, rates, width, label=method
             )

@@ -83,7 +83,7 @@ def run(
                 progress=bar,
             )
         if json_output:
-            sys.stdout.write(json.dumps(result.summary) + "\n")
+            sys.stdout.write(json.dumps(result.summary.to_json()) + "\n")
             return
         _print_summary(result)
         if figure:

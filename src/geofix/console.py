@@ -6,6 +6,8 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from geofix.evaluate.summary import CampaignSummary
+
 
 class ProgressBar:
     """A rich progress bar on stderr, usable as ``run_campaign(..., progress=bar)``.
@@ -47,13 +49,13 @@ class ProgressBar:
         self._progress.update(self._task, completed=done, total=total)
 
 
-def summary_table(summary: dict) -> Table:
+def summary_table(summary: CampaignSummary) -> Table:
     """A printable table of a campaign summary.
 
     Parameters
     ----------
-    summary : dict
-        As returned in :attr:`CampaignResult.summary`.
+    summary : CampaignSummary
+        As returned in :attr:`geofix.evaluate.campaign.CampaignResult.summary`.
 
     Returns
     -------
@@ -62,12 +64,12 @@ def summary_table(summary: dict) -> Table:
         and mean along-track error (metres), success rates within 100 m, 1 cell and
         3 cells (%), mean time per ``match`` call (milliseconds).
     """
-    title = f"{summary['scenario']}: {summary['trials']} trials, errors in metres"
+    title = f"{summary.scenario}: {summary.trials} trials, errors in metres"
     table = Table(title=title)
     table.add_column("method", style="bold", no_wrap=True)
     for head, _ in _TABLE_COLUMNS:
         table.add_column(head, justify="right")
-    for spec, stats in summary["methods"].items():
+    for spec, stats in summary.methods.items():
         table.add_row(spec, *(cell(stats) for _, cell in _TABLE_COLUMNS))
     return table
 
@@ -81,15 +83,15 @@ def _pct(value: float | None) -> str:
 
 
 _TABLE_COLUMNS = (
-    ("trials", lambda s: str(s["trials"])),
-    ("failed", lambda s: str(s["failures"])),
-    ("mean", lambda s: _fmt(s["mean_error_m"])),
-    ("std", lambda s: _fmt(s["std_error_m"])),
-    ("median", lambda s: _fmt(s["median_error_m"])),
-    ("max", lambda s: _fmt(s["max_error_m"])),
-    ("track", lambda s: _fmt(s["mean_track_error_m"])),
-    ("≤100 m", lambda s: _pct(s["success_rate"]["100"])),
-    ("≤1 cell", lambda s: _pct(s["success_rate"]["1c"])),
-    ("≤3 cells", lambda s: _pct(s["success_rate"]["3c"])),
-    ("ms/call", lambda s: _fmt(s["mean_time_s"], 2, 1e3)),
+    ("trials", lambda s: str(s.trials)),
+    ("failed", lambda s: str(s.failures)),
+    ("mean", lambda s: _fmt(s.mean_error_m)),
+    ("std", lambda s: _fmt(s.std_error_m)),
+    ("median", lambda s: _fmt(s.median_error_m)),
+    ("max", lambda s: _fmt(s.max_error_m)),
+    ("track", lambda s: _fmt(s.mean_track_error_m)),
+    ("≤100 m", lambda s: _pct(s.success_rate["100"])),
+    ("≤1 cell", lambda s: _pct(s.success_rate["1c"])),
+    ("≤3 cells", lambda s: _pct(s.success_rate["3c"])),
+    ("ms/call", lambda s: _fmt(s.mean_time_s, 2, 1e3)),
 )

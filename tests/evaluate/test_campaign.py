@@ -15,6 +15,7 @@ from geofix.errors import ConfigError, MapError, MatchError, TrackOffMapError
 from geofix.evaluate import run_campaign, run_trial
 from geofix.evaluate.runner import method_rng
 from geofix.evaluate.store import ResultStore
+from geofix.evaluate.summary import CampaignSummary
 from geofix.maps.grid import Grid
 from geofix.problem import Fix
 from geofix.sim.scenario import scenario_from_dict
@@ -211,17 +212,18 @@ def reference(tmp_path_factory):
 
 def test_summary_contract_and_files(reference):
     summary = reference.summary
-    assert summary["scenario"] == "tiny" and summary["trials"] == 6
-    assert list(summary["methods"]) == ["tercom", "test_jitter"]
+    assert summary.scenario == "tiny" and summary.trials == 6
+    assert list(summary.methods) == ["tercom", "test_jitter"]
     keys = {"trials", "mean_error_m", "std_error_m", "median_error_m", "max_error_m"}
     keys |= {"mean_track_error_m", "max_track_error_m", "success_rate", "mean_time_s"}
     keys |= {"failures"}
-    stats = summary["methods"]["tercom"]
-    assert keys <= set(stats)
-    assert stats["trials"] == 6 and stats["failures"] == 0
-    assert list(stats["success_rate"]) == ["20", "40", "60", "80", "100", "0.5c", "1c", "2c", "3c"]
-    assert stats["mean_error_m"] < summary["methods"]["test_jitter"]["mean_error_m"]
-    assert json.loads(reference.paths["summary"].read_text()) == summary
+    stats = summary.methods["tercom"]
+    assert keys <= set(stats.to_json())
+    assert stats.trials == 6 and stats.failures == 0
+    assert list(stats.success_rate) == ["20", "40", "60", "80", "100", "0.5c", "1c", "2c", "3c"]
+    assert stats.mean_error_m < summary.methods["test_jitter"].mean_error_m
+    assert json.loads(reference.paths["summary"].read_text()) == summary.to_json()
+    assert CampaignSummary.from_json(summary.to_json()) == summary
     assert list(reference.frame["trial"]) == [*range(6), *range(6)]
     assert summary_table(summary).row_count == 2
     with ResultStore(reference.paths["store"].parent) as store:

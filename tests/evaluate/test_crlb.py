@@ -15,6 +15,7 @@ from geofix.evaluate.crlb import (
     trial_crlb,
 )
 from geofix.evaluate.metrics import end_mahalanobis, summarize
+from geofix.evaluate.summary import CampaignSummary
 from geofix.maps.grid import Grid
 from geofix.maps.synthetic import planar_grid
 from geofix.measurement import beam_gradients, inverse_trace, sample_information
@@ -153,9 +154,9 @@ def test_mahalanobis_distance_and_the_false_fix_rule():
             "failed": False,
         }
     )
-    assert summarize(rows, cell_m=50.0)["m"]["false_fix_rate"] == pytest.approx(0.25)
+    assert summarize(rows, cell_m=50.0)["m"].false_fix_rate == pytest.approx(0.25)
     no_cov = rows.assign(end_mahalanobis=np.nan)
-    assert summarize(no_cov, cell_m=50.0)["m"]["false_fix_rate"] == pytest.approx(0.5)
+    assert summarize(no_cov, cell_m=50.0)["m"].false_fix_rate == pytest.approx(0.5)
 
 
 def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path, small_mission):
@@ -163,16 +164,16 @@ def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path,
 
     scen = small_mission("crlb-small")
     result = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=None)
-    summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["crlb_m"] == pytest.approx(result.summary["crlb_m"])
-    assert 0 < summary["crlb_m"] < 1500.0
-    assert summary["crlb_batch_m"] > 0
+    summary = CampaignSummary.from_json(json.loads((tmp_path / "summary.json").read_text()))
+    assert summary.crlb_m == pytest.approx(result.summary.crlb_m)
+    assert 0 < summary.crlb_m < 1500.0
+    assert summary.crlb_batch_m > 0
     per_trial = result.frame["crlb_m"].to_numpy()
-    assert summary["crlb_m"] == pytest.approx(np.sqrt(np.mean(per_trial**2)))
-    assert "false_fix_rate" in summary["methods"]["tercom"]
+    assert summary.crlb_m == pytest.approx(np.sqrt(np.mean(per_trial**2)))
+    assert "false_fix_rate" in summary.methods["tercom"].to_json()
     assert result.frame["end_mahalanobis"].notna().all()  # tercom gives a covariance
     with sqlite3.connect(tmp_path / "results.sqlite") as db:
         db.execute("DROP TABLE trial_bounds")
     again = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=None)
     assert again.computed == 0
-    assert again.summary["crlb_m"] == pytest.approx(result.summary["crlb_m"])
+    assert again.summary.crlb_m == pytest.approx(result.summary.crlb_m)

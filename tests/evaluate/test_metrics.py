@@ -58,20 +58,20 @@ def table():
 
 def test_error_statistics_over_successful_trials(table):
     s = summarize(table, cell_m=40.0)["tercom:metric=mad"]
-    assert s["trials"] == 6
-    assert s["failures"] == 1
-    assert s["mean_error_m"] == pytest.approx(86.0)
-    assert s["std_error_m"] == pytest.approx(math.sqrt(7424.0))  # population std
-    assert s["median_error_m"] == pytest.approx(50.0)
-    assert s["max_error_m"] == pytest.approx(250.0)
-    assert s["mean_track_error_m"] == pytest.approx(38.0)
-    assert s["max_track_error_m"] == pytest.approx(300.0)
-    assert s["mean_time_s"] == pytest.approx(5.5 / 11)
-    assert s["leg_mean_errors_m"] == pytest.approx([8.6, 86.0])
+    assert s.trials == 6
+    assert s.failures == 1
+    assert s.mean_error_m == pytest.approx(86.0)
+    assert s.std_error_m == pytest.approx(math.sqrt(7424.0))  # population std
+    assert s.median_error_m == pytest.approx(50.0)
+    assert s.max_error_m == pytest.approx(250.0)
+    assert s.mean_track_error_m == pytest.approx(38.0)
+    assert s.max_track_error_m == pytest.approx(300.0)
+    assert s.mean_time_s == pytest.approx(5.5 / 11)
+    assert s.leg_mean_errors_m == pytest.approx([8.6, 86.0])
 
 
 def test_success_rates_in_metres_and_cells_count_failures_as_misses(table):
-    rates = summarize(table, cell_m=40.0)["tercom:metric=mad"]["success_rate"]
+    rates = summarize(table, cell_m=40.0)["tercom:metric=mad"].success_rate
     expected = {"20": 1, "40": 2, "60": 3, "80": 3, "100": 4}
     expected.update({"0.5c": 1, "1c": 2, "2c": 3, "3c": 4})  # 20, 40, 80, 120 m
     assert list(rates) == list(expected)
@@ -81,30 +81,30 @@ def test_success_rates_in_metres_and_cells_count_failures_as_misses(table):
 
 def test_false_fixes_are_far_and_unflagged(table):
     s = summarize(table, cell_m=40.0)["tercom:metric=mad"]
-    assert s["false_fix_rate"] == pytest.approx(1 / 6)  # 250 m > 3 cells, not flagged
+    assert s.false_fix_rate == pytest.approx(1 / 6)  # 250 m > 3 cells, not flagged
     flagged = table.copy()
     flagged.loc[4, "ambiguous"] = True
-    assert summarize(flagged, cell_m=40.0)["tercom:metric=mad"]["false_fix_rate"] == 0.0
+    assert summarize(flagged, cell_m=40.0)["tercom:metric=mad"].false_fix_rate == 0.0
     # with 100 m cells, 250 m is within 3 cells: no false fix
-    assert summarize(table, cell_m=100.0)["tercom:metric=mad"]["false_fix_rate"] == 0.0
+    assert summarize(table, cell_m=100.0)["tercom:metric=mad"].false_fix_rate == 0.0
 
 
 def test_all_failed_method_gives_none_not_nan(table):
     s = summarize(table, cell_m=40.0)["b"]
-    assert s["trials"] == 2 and s["failures"] == 2
+    assert s.trials == 2 and s.failures == 2
     for key in ("mean_error_m", "std_error_m", "median_error_m", "max_error_m"):
-        assert s[key] is None
-    assert s["mean_track_error_m"] is None
-    assert set(s["success_rate"].values()) == {0.0}
-    assert s["mean_time_s"] == pytest.approx(0.2)
-    assert s["leg_mean_errors_m"] == []
+        assert getattr(s, key) is None
+    assert s.mean_track_error_m is None
+    assert set(s.success_rate.values()) == {0.0}
+    assert s.mean_time_s == pytest.approx(0.2)
+    assert s.leg_mean_errors_m == []
 
 
 def test_methods_keep_their_order_and_values_are_plain_python(table):
     summary = summarize(table.iloc[::-1], cell_m=40.0)
     assert list(summary) == ["b", "tercom:metric=mad"]
     s = summary["tercom:metric=mad"]
-    for key, value in s.items():
+    for key, value in s.to_json().items():
         if key not in ("success_rate", "leg_mean_errors_m"):
             assert type(value) in (int, float, type(None)), key
             assert not isinstance(value, np.generic), key

@@ -38,6 +38,7 @@ from geofix.evaluate.crlb import rms_bound, scenario_beam_variance, trial_crlb
 from geofix.evaluate.metrics import end_mahalanobis, summarize
 from geofix.evaluate.runner import TrialResult, method_rng, run_trial
 from geofix.evaluate.store import ResultStore, scenario_hash
+from geofix.evaluate.summary import CampaignSummary
 from geofix.maps.grid import Grid
 from geofix.methods import parse_method_spec
 from geofix.sim.scenario import Scenario
@@ -89,9 +90,9 @@ class CampaignResult:
         :meth:`geofix.evaluate.store.ResultStore.to_frame` for the columns), plus
         ``end_mahalanobis`` (end error against the method's last covariance, NaN
         without one) and ``crlb_m`` (the trial's recursive bound, metres).
-    summary : dict
-        ``{"scenario", "trials", "crlb_m", "crlb_batch_m", "methods": {spec: stats}}`` (see
-        :func:`geofix.evaluate.metrics.summarize`), as written to ``summary.json``.
+    summary : CampaignSummary
+        The bounds and every method's :class:`~geofix.evaluate.summary.MethodStats`;
+        ``summary.to_json()`` is what ``summary.json`` holds.
         ``crlb_m`` is the recursive CRLB on the end-point RMS error over the trials,
         ``sqrt(mean_i trace(J_n^-1))`` metres (variances averaged, then the root);
         ``crlb_batch_m`` the same for a rigid batch fix of the last leg (None if singular
@@ -108,7 +109,7 @@ class CampaignResult:
     scenario: str
     trials: int
     frame: pd.DataFrame
-    summary: dict
+    summary: CampaignSummary
     paths: dict = field(default_factory=dict)
     computed: int = 0
     scenario_hash: str = ""
@@ -234,15 +235,15 @@ def _campaign_frame(frame: pd.DataFrame, specs: list[str], trials: int) -> pd.Da
 
 def _finish(scenario, grid, frame, out: Path, store_path: Path, computed: int, infos: dict):
     chosen = [infos[i] for i in range(scenario.trials)]
-    summary = {
-        "scenario": scenario.name,
-        "trials": scenario.trials,
-        "crlb_m": rms_bound([i.crlb_var_m2 for i in chosen]),
-        "crlb_batch_m": rms_bound([i.crlb_batch_var_m2 for i in chosen]),
-        "methods": summarize(frame, grid.cell_size),
-    }
+    summary = CampaignSummary(
+        scenario=scenario.name,
+        trials=scenario.trials,
+        crlb_m=rms_bound([i.crlb_var_m2 for i in chosen]),
+        crlb_batch_m=rms_bound([i.crlb_batch_var_m2 for i in chosen]),
+        methods=summarize(frame, grid.cell_size),
+    )
     summary_path = out / SUMMARY_NAME
-    summary_path.write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    summary_path.write_text(json.dumps(summary.to_json(), indent=2, allow_nan=False) + "\n")
     return CampaignResult(
         scenario=scenario.name,
         trials=scenario.trials,

@@ -15,6 +15,8 @@ import math
 import numpy as np
 import pandas as pd
 
+from geofix.evaluate.summary import MethodStats
+
 #: Success thresholds in metres (key -> metres).
 SUCCESS_METRES = {"20": 20.0, "40": 40.0, "60": 60.0, "80": 80.0, "100": 100.0}
 #: Success thresholds in map cells (key -> cells).
@@ -25,7 +27,7 @@ FALSE_FIX_CELLS = 3.0
 FALSE_FIX_SIGMAS = 3.0
 
 
-def summarize(results_df: pd.DataFrame, cell_m: float) -> dict:
+def summarize(results_df: pd.DataFrame, cell_m: float) -> dict[str, MethodStats]:
     """Per-method statistics of a campaign.
 
     Failed trials (the method raised an error) are left out of every error statistic but
@@ -43,8 +45,8 @@ def summarize(results_df: pd.DataFrame, cell_m: float) -> dict:
     Returns
     -------
     dict
-        ``{method: stats}`` in order of first appearance, where ``stats`` holds plain
-        Python numbers (``None`` where undefined, e.g. no successful trial):
+        ``{method: MethodStats}`` in order of first appearance; each holds plain Python
+        numbers (``None`` where undefined, e.g. no successful trial):
         ``trials``, ``mean_error_m``, ``std_error_m``, ``median_error_m``, ``max_error_m``
         (metres), ``mean_track_error_m`` (mean over trials of the mean along-track error,
         metres), ``max_track_error_m`` (metres), ``success_rate`` (share of trials with an
@@ -59,28 +61,28 @@ def summarize(results_df: pd.DataFrame, cell_m: float) -> dict:
     return {m: method_stats(results_df[results_df["method"] == m], cell_m) for m in methods}
 
 
-def method_stats(rows: pd.DataFrame, cell_m: float) -> dict:
+def method_stats(rows: pd.DataFrame, cell_m: float) -> MethodStats:
     """Statistics of one method's rows (see :func:`summarize`); ``cell_m`` in metres."""
     failed = rows["failed"].to_numpy(dtype=bool)
     ok = rows[~failed]
     end = ok["end_error_m"].to_numpy(dtype=float)
     n_calls = int(rows["n_calls"].sum())
-    return {
-        "trials": len(rows),
-        "mean_error_m": _num(np.mean(end) if end.size else math.nan),
-        "std_error_m": _num(np.std(end) if end.size else math.nan),
-        "median_error_m": _num(np.median(end) if end.size else math.nan),
-        "max_error_m": _num(np.max(end) if end.size else math.nan),
-        "mean_track_error_m": _num(ok["mean_track_error_m"].mean()),
-        "max_track_error_m": _num(ok["max_track_error_m"].max()),
-        "success_rate": success_rates(end, len(rows), cell_m),
-        "mean_time_s": _num(rows["time_s"].sum() / n_calls if n_calls else math.nan),
-        "failures": int(failed.sum()),
-        "false_fix_rate": _num(false_fix_rate(ok, len(rows), cell_m)),
-        "ambiguous_rate": _num(rows["ambiguous"].astype(bool).mean() if len(rows) else math.nan),
-        "mean_evaluations": _num(rows["evaluations"].mean() if len(rows) else math.nan),
-        "leg_mean_errors_m": leg_mean_errors(ok["leg_errors_m"]),
-    }
+    return MethodStats(
+        trials=len(rows),
+        mean_error_m=_num(np.mean(end) if end.size else math.nan),
+        std_error_m=_num(np.std(end) if end.size else math.nan),
+        median_error_m=_num(np.median(end) if end.size else math.nan),
+        max_error_m=_num(np.max(end) if end.size else math.nan),
+        mean_track_error_m=_num(ok["mean_track_error_m"].mean()),
+        max_track_error_m=_num(ok["max_track_error_m"].max()),
+        success_rate=success_rates(end, len(rows), cell_m),
+        mean_time_s=_num(rows["time_s"].sum() / n_calls if n_calls else math.nan),
+        failures=int(failed.sum()),
+        false_fix_rate=_num(false_fix_rate(ok, len(rows), cell_m)),
+        ambiguous_rate=_num(rows["ambiguous"].astype(bool).mean() if len(rows) else math.nan),
+        mean_evaluations=_num(rows["evaluations"].mean() if len(rows) else math.nan),
+        leg_mean_errors_m=leg_mean_errors(ok["leg_errors_m"]),
+    )
 
 
 def success_rates(end_errors: np.ndarray, trials: int, cell_m: float) -> dict:
