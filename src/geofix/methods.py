@@ -60,7 +60,14 @@ def register(cls: type) -> type:
 
 
 def available_methods() -> dict[str, type]:
-    """All registered methods, by name."""
+    """All registered methods, by name.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> list(geofix.available_methods())[:3]
+    ['abc-mhd', 'ga-sca', 'iccp']
+    """
     return dict(sorted(_REGISTRY.items()))
 
 
@@ -81,10 +88,28 @@ def method_settings(cls: type) -> list[tuple[str, object, str]]:
 def parse_method_spec(spec: str):
     """Build a method from ``"name"`` or ``"name:key=value,key=value"``.
 
+    Parameters
+    ----------
+    spec : str
+        The method's registered name, optionally followed by ``:`` and comma-separated
+        ``key=value`` settings (values read as the type of the setting's default).
+
+    Returns
+    -------
+    object
+        The method (a frozen dataclass with ``match(problem, rng) -> Fix``).
+
     Raises
     ------
     ConfigError
         Unknown method, unknown setting, or a value of the wrong type.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> method = geofix.parse_method_spec("tercom:metric=mad,window_sigma=2")
+    >>> method.name, method.metric, method.window_sigma
+    ('tercom', 'mad', 2.0)
     """
     name, _, rest = spec.strip().partition(":")
     methods = available_methods()

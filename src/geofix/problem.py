@@ -186,4 +186,6 @@ class Matcher(Protocol):
     name: ClassVar[str]
     recursive: ClassVar[bool]
 
-    def match(self, problem: MatchProblem, rng: np.random.Generator) -> Fix: ...
+    def match(self, problem: MatchProblem, rng: np.random.Generator) -> Fix:
+        """Solve ``problem``; ``rng`` is the only source of randomness."""
+        ...

@@ -161,6 +161,18 @@ def run_campaign(
         Before any trial runs and before the store is created: an unknown or badly set
         method (ConfigError), a missing or unusable map (MapError), a track leaving the
         map on trial 0 (TrackOffMapError).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> import geofix
+    >>> scen = geofix.load_scenario("builtin:azores_demo")
+    >>> out = tempfile.mkdtemp()
+    >>> result = geofix.run_campaign(scen, ["tercom", "pmf"], trials=2, jobs=1, out_dir=out)
+    >>> list(result.summary.methods), result.summary.trials
+    (['tercom', 'pmf'], 2)
+    >>> result.summary.methods["tercom"].success_rate["3c"] is not None
+    True
     """
     scenario = _override(scenario, trials, seed)
     parsed = _parse_methods(methods)

@@ -1,4 +1,4 @@
-"""Terrain suitability: where on a map can a vehicle fix its position, and how well?
+"""Terrain suitability: where on a map a vehicle can fix its position, and how well.
 
 Three layers, each on the map's own cells, for a mission planner to route the vehicle:
 

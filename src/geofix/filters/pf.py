@@ -117,6 +117,18 @@ class Pf(RecursiveFilter):
         Radius around the fix, map cells, for the integrity flag.
     ambiguity_mass : float
         Weight beyond that radius above which the fix is flagged ambiguous.
+
+    References
+    ----------
+    .. [1] Gordon, N. J., Salmond, D. J., & Smith, A. F. M. (1993). Novel approach to
+       nonlinear/non-Gaussian Bayesian state estimation. IEE Proceedings F, 140(2),
+       107-113.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> geofix.Pf().name
+    'pf'
     """
 
     name: ClassVar[str] = "pf"

@@ -152,6 +152,23 @@ class Pmf(RecursiveFilter):
         Radius around the fix, map cells, for the integrity flag.
     ambiguity_mass : float
         Posterior share beyond that radius above which the fix is flagged ambiguous.
+
+    References
+    ----------
+    .. [1] Bergman, N. (1999). Recursive Bayesian estimation: navigation and tracking
+       applications. PhD thesis, Linköping University, Dissertation No. 579.
+    .. [2] Anonsen, K. B., & Hallingstad, O. (2006). Terrain aided underwater navigation
+       using point mass and particle filters. Proc. IEEE/ION PLANS 2006, 1027-1035.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> scen = geofix.load_scenario("builtin:azores_demo")
+    >>> grid = geofix.prepare_map(scen)
+    >>> trial = geofix.simulate_trial(scen, grid, 0)
+    >>> fix = geofix.Pmf().match(trial.problem(grid), np.random.default_rng(0))
+    >>> fix.track.shape == trial.truth.shape
+    True
     """
 
     name: ClassVar[str] = "pmf"
@@ -265,8 +282,11 @@ class Pmf(RecursiveFilter):
         return (np.asarray(mean, dtype=float), axes, spacing), shape
 
     def support_half_extent(self, state: PmfState, centre, axes) -> np.ndarray:
-        """``(2,)`` half-widths, metres, along ``axes`` about ``centre`` that hold every node
-        within ``support_nats`` of the peak log-weight, plus one node spacing."""
+        """Half-widths of the posterior's support along ``axes`` about ``centre``.
+
+        ``(2,)`` metres: every node within ``support_nats`` of the peak log-weight, plus
+        one node spacing.
+        """
         keep = state.log_weight >= state.log_weight.max() - self.support_nats
         xy = ops.node_positions(*state.frame, state.shape)[keep]
         reach = np.abs((xy - centre) @ axes).max(axis=0)

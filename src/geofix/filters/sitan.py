@@ -1,4 +1,4 @@
-r"""SITAN and the SITAN filter bank (source 002, ALGORITHMS.md section 5).
+r"""SITAN and the SITAN filter bank (source 002).
 
 SITAN (Sandia inertial terrain-aided navigation) is an extended Kalman filter on the
 error state ``X = [dx, dy, dh, dvx, dvy]``:
@@ -167,8 +167,11 @@ def position_sigma_max(cov: np.ndarray) -> np.ndarray:
 
 
 def patch_half_width(cov: np.ndarray, patch_sigmas: float, cell_m: float) -> np.ndarray:
-    """Plane-fit half-widths, metres, ``(M,)``: ``patch_sigmas`` position sigmas, at least one
-    cell, rounded up to the ladder ``cell_m * sqrt(2)^j`` (``j >= 0``)."""
+    """Plane-fit half-widths, metres, ``(M,)``.
+
+    ``patch_sigmas`` position sigmas, at least one cell, rounded up to the ladder
+    ``cell_m * sqrt(2)^j`` (``j >= 0``).
+    """
     hw = np.maximum(patch_sigmas * position_sigma_max(cov), cell_m)
     steps = np.ceil(2.0 * np.log2(hw / cell_m) - 1e-9)
     return cell_m * np.sqrt(2.0) ** np.maximum(steps, 0.0)
@@ -374,6 +377,20 @@ class Sitan(_EkfSettings, RecursiveFilter):
     The prior position sigma is ``problem.sigma_position[0]``; its per-step growth is the
     position process noise. The velocity and bias defaults (0.05 m/s, 1 map unit) are
     documented choices, not the source's (it gives none).
+
+    References
+    ----------
+    .. [1] Hostetler, L. D., & Andreas, R. D. (1983). Nonlinear Kalman filtering
+       techniques for terrain-aided navigation. IEEE Transactions on Automatic Control,
+       28(3), 315-323.
+    .. [2] Zheng, T., Wang, Z., & Bian, S. (2008). SITAN and its parallel-filter
+       improvement for underwater terrain navigation. Ship Electronic Engineering, 28(7).
+
+    Examples
+    --------
+    >>> import geofix
+    >>> geofix.Sitan().recursive
+    True
     """
 
     name: ClassVar[str] = "sitan"
@@ -422,8 +439,11 @@ class Sitan(_EkfSettings, RecursiveFilter):
         return state.indicated + state.x[:2], state.cov[:2, :2].copy()
 
     def is_ambiguous(self, state: SitanState) -> bool:
-        """True when the smoothed normalised innovation exceeds ``consistency_bound``, or
-        the posterior is too wide (:func:`posterior_too_wide`)."""
+        """Whether the fix is unsure.
+
+        True when the smoothed normalised innovation exceeds ``consistency_bound``, or
+        the posterior is too wide (:func:`posterior_too_wide`).
+        """
         if state.swrs > self.consistency_bound or state.updates == 0:
             return True
         radius = self.spread_cells * state.cell_m
@@ -603,6 +623,17 @@ consistency_bound
     ``max(spacing * shrink, min_spacing_cells * cell)``, is centred on the best filter;
     each inherits its bias and velocity (state and covariance), gets a position sigma
     ``max(cell_sigma * spacing, best sigma)`` and ``SWRS = 1``.
+
+    References
+    ----------
+    .. [1] Zheng, T., Wang, Z., & Bian, S. (2008). SITAN and its parallel-filter
+       improvement for underwater terrain navigation. Ship Electronic Engineering, 28(7).
+
+    Examples
+    --------
+    >>> import geofix
+    >>> geofix.SitanBank().name
+    'sitan-bank'
     """
 
     name: ClassVar[str] = "sitan-bank"
@@ -626,8 +657,11 @@ consistency_bound
             raise ConfigError(f"{self.name}: need 0 < shrink < 1, span_sigmas, cell_sigma > 0")
 
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> BankState:
-        """The first bank: up to ``side x side`` filters spanning ``+-span_sigmas`` prior
-        sigmas (fewer when that already makes the spacing ``min_spacing_cells``)."""
+        """The first bank of filters.
+
+        Up to ``side x side`` filters spanning ``+-span_sigmas`` prior sigmas (fewer when
+        that already makes the spacing ``min_spacing_cells``).
+        """
         _check_problem(problem, self.name)
         sigma0 = max(float(problem.sigma_position[0]), 1e-3)
         floor = self.min_spacing_cells * problem.grid.cell_size
@@ -650,8 +684,10 @@ consistency_bound
         )
 
     def first_side(self, sigma0: float, cell_m: float) -> int:
-        """``N`` of the first bank: ``side``, or the smallest odd ``N >= min_side`` whose
-        spacing ``2 span_sigmas sigma0 / (N - 1)`` is at most ``min_spacing_cells`` cells.
+        """``N`` of the first bank.
+
+        ``side``, or the smallest odd ``N >= min_side`` whose spacing
+        ``2 span_sigmas sigma0 / (N - 1)`` is at most ``min_spacing_cells`` cells.
 
         Parameters
         ----------
@@ -732,9 +768,12 @@ consistency_bound
         return state.indicated + state.x[best, :2], state.cov[best, :2, :2].copy()
 
     def is_ambiguous(self, state: BankState) -> bool:
-        """True if the first bank never re-initialised (not converged; a first bank that is
+        """Whether the bank's fix is unsure.
+
+        True if the first bank never re-initialised (not converged; a first bank that is
         already final is exempt), the best filter's SWRS exceeds ``consistency_bound``, or
-        a distant filter's SWRS is within ``ambiguity_ratio`` of the best's."""
+        a distant filter's SWRS is within ``ambiguity_ratio`` of the best's.
+        """
         unsettled = state.generation == 0 and not state.final
         if unsettled or state.swrs[state.best] > self.consistency_bound:
             return True

@@ -88,6 +88,16 @@ def load_grid(
     ------
     MapError
         Missing or unreadable file, unknown variable, a region without cells, no data.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> grid = geofix.load_map("builtin:mb_1km")
+    >>> grid.shape, grid.cell_size, grid.units
+    ((160, 160), 1000.0, 'm')
+    >>> azores = geofix.load_map("builtin:azores", region=[-30, -29, 38, 39], resample_m=2000)
+    >>> azores.meta["projection"].startswith("+proj=tmerc")
+    True
     """
     if kind is not None and kind not in KINDS:
         raise MapError(f"map kind must be one of {KINDS}, got {kind!r}")

@@ -1,9 +1,10 @@
 """ABC-MHD: gravity matching by an artificial bee colony, screened by mean Hausdorff distance.
 
-Source 003 (CN103487056A, ALGORITHMS.md section 6). Every pair of consecutive indicated
-positions ``(p_k, p_k+1)`` gets its own colony; a food source is a candidate position pair
-``(a, b)``, ``a`` near ``p_k`` and ``b`` near ``p_k+1`` (the "two swarms"). All colonies of a
-track run at once: every phase is one numpy step over an array ``(pairs, sources, 4)``.
+Source 003 (Chinese patent CN103487056A, Harbin Engineering University, 2014). Every
+pair of consecutive indicated positions ``(p_k, p_k+1)`` gets its own colony; a food
+source is a candidate position pair ``(a, b)``, ``a`` near ``p_k`` and ``b`` near
+``p_k+1`` (the "two swarms"). All colonies of a track run at once: every phase is one
+numpy step over an array ``(pairs, sources, 4)``.
 
 - Search box: ``a`` and ``b`` lie within ``window_sigma`` prior sigmas of their indicated
   positions (per axis), the same 3-sigma window as TERCOM.
@@ -90,6 +91,22 @@ class AbcMhd:
     ambiguity_cells : float
         The fix is flagged ambiguous when the median screening distance of the chosen
         candidates exceeds this many cells.
+
+    References
+    ----------
+    .. [1] Harbin Engineering University (2014). Gravity matching method based on the
+       artificial bee colony algorithm and the mean Hausdorff distance. Chinese patent
+       CN103487056A.
+    .. [2] Karaboga, D. (2005). An idea based on honey bee swarm for numerical
+       optimization. Technical report TR06, Erciyes University.
+    .. [3] Dubuisson, M.-P., & Jain, A. K. (1994). A modified Hausdorff distance for
+       object matching. Proc. 12th International Conference on Pattern Recognition.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> geofix.AbcMhd().name
+    'abc-mhd'
     """
 
     name: ClassVar[str] = "abc-mhd"
@@ -418,8 +435,11 @@ class Colonies:
 # ---------------------------------------------------------------------- screening
 @dataclass(frozen=True)
 class Screened:
-    """The chosen candidate of every pair: ``positions`` ``(K, 4)``, its screening
-    distance ``distance`` ``(K,)`` metres and its misfit ``misfit`` ``(K,)``."""
+    """The chosen candidate of every pair.
+
+    ``positions`` ``(K, 4)``, its screening distance ``distance`` ``(K,)`` metres and its
+    misfit ``misfit`` ``(K,)``.
+    """
 
     positions: np.ndarray
     distance: np.ndarray

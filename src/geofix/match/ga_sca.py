@@ -1,8 +1,7 @@
 """GA-SCA: multibeam matching by a genetic algorithm refined with the sine-cosine algorithm.
 
-Source 000 (Zhang, Zhang, Zhang, J. Chinese Inertial Technology 30(4), 2022;
-ALGORITHMS.md section 3). The matched track is a four-parameter transform of the
-indicated track,
+Source 000 (Zhang, Zhang, Zhang, J. Chinese Inertial Technology 30(4), 2022). The
+matched track is a four-parameter transform of the indicated track,
 
     p' = p_0 + alpha * R(theta) (p - p_0) + (t_x, t_y),
 
@@ -153,6 +152,20 @@ class GaSca:
         is only the backstop for a plain: the flat NAVO survey gives 0.2-0.5 at the fixes,
         the gentlest benchmark terrain (source 000, terrain A) 0.74-0.97 at fixes mostly
         within a few cells, all of which a threshold of 1 flagged.
+
+    References
+    ----------
+    .. [1] Zhang, T., Zhang, C., & Zhang, J. (2022). Underwater terrain matching with an
+       improved genetic algorithm and the sine-cosine algorithm (multibeam). Journal of
+       Chinese Inertial Technology, 30(4).
+    .. [2] Mirjalili, S. (2016). SCA: a sine cosine algorithm for solving optimization
+       problems. Knowledge-Based Systems, 96, 120-133.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> geofix.parse_method_spec("ga-sca:variant=B").variant
+    'B'
     """
 
     name: ClassVar[str] = "ga-sca"

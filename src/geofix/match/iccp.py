@@ -1,7 +1,8 @@
 """ICCP and multipath parallel ICCP: iterative closest contour point matching.
 
-ALGORITHMS.md section 2. Every measured value ``h_j`` says the true footprint lies on the
-map's ``h_j`` contour. Starting from the indicated track, iterate:
+After Kamgar-Parsi & Kamgar-Parsi (1999), below. Every measured value ``h_j`` says the
+true footprint lies on the map's ``h_j`` contour. Starting from the indicated track,
+iterate:
 
 1. for each footprint of the current track, find the closest point of its own contour
    (contours of the map window around the indicated track by
@@ -218,6 +219,17 @@ class Iccp(_IccpBase):
         test is blind once the relief is within the noise, and on the gentlest benchmark
         terrain (source 000, terrain A, ratio 0.84-1.15) the fixes it flags are 5-17
         cells off.
+
+    References
+    ----------
+    .. [1] Kamgar-Parsi, B., & Kamgar-Parsi, B. (1999). Vehicle localization on gravity
+       maps. Proc. SPIE 3693, Unmanned Ground Vehicle Technology, 182-191.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> geofix.parse_method_spec("iccp:max_iterations=20").max_iterations
+    20
     """
 
     name: ClassVar[str] = "iccp"
@@ -248,6 +260,17 @@ min_terrain_snr
         at least one cell, as in :class:`geofix.match.ga_sca.GaSca`.
     side_offset_m : float
         Fixed side-path spacing, metres; overrides ``mu1``/``mu2`` when > 0.
+
+    References
+    ----------
+    .. [1] Wang, K., Xu, X., & Zhang, T. (2018). Multipath parallel ICCP underwater
+       terrain matching algorithm based on multibeam bathymetric data. IEEE Access, 6.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> geofix.MultipathIccp().name
+    'iccp-multipath'
     """
 
     name: ClassVar[str] = "iccp-multipath"

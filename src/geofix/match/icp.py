@@ -1,6 +1,6 @@
 """ICP surface matching of a multibeam point cloud, and TERCOM coarse + ICP fine (source 001).
 
-Source 001 (Cheng et al., 2023; ALGORITHMS.md section 4) registers the multibeam swath
+Source 001 (Cheng et al., Navigation Positioning and Timing, 2023(2)) registers the multibeam swath
 as a 3-D point cloud onto the map's grid points with the iterative closest point
 algorithm (ICP), started from a TERCOM fix.
 
@@ -135,6 +135,19 @@ class Icp:
         Flag the fix ambiguous when the map's std over the final footprints is below this
         many sensor-noise sigmas (1, as :class:`geofix.match.tercom.Tercom`: the residual
         test cannot tell a wrong placement once the relief is within the noise).
+
+    References
+    ----------
+    .. [1] Besl, P. J., & McKay, N. D. (1992). A method for registration of 3-D shapes.
+       IEEE Transactions on Pattern Analysis and Machine Intelligence, 14(2), 239-256.
+    .. [2] Cheng, J. et al. (2023). Multibeam terrain matching by TERCOM and ICP.
+       Navigation Positioning and Timing, 2023(2).
+
+    Examples
+    --------
+    >>> import geofix
+    >>> geofix.Icp().name
+    'icp'
     """
 
     name: ClassVar[str] = "icp"
@@ -281,6 +294,17 @@ class TercomIcp(Icp):
     The other settings are those of :class:`Icp`. ``Fix.diagnostics`` holds the ICP
     iterations and the coarse fix (``coarse_track`` ``(n, 2)`` metres, ``coarse_offset``
     metres, ``coarse_ambiguous``).
+
+    References
+    ----------
+    .. [1] Cheng, J. et al. (2023). Multibeam terrain matching by TERCOM and ICP.
+       Navigation Positioning and Timing, 2023(2).
+
+    Examples
+    --------
+    >>> import geofix
+    >>> geofix.parse_method_spec("tercom-icp:coarse_beams=all").coarse_beams
+    'all'
     """
 
     name: ClassVar[str] = "tercom-icp"

@@ -1,6 +1,7 @@
 """IOAP: iterative optimal annular (ring-domain) points, gravity matching (source 004).
 
-Two ring searches replace TERCOM's square window (ALGORITHMS.md section 7):
+Two ring searches replace TERCOM's square window (source 004: Chinese patent application
+of Zheng Wei, Li Zhaowei and Zhao Shijie, 2021):
 
 1. **SPMP** (start point). Around the indicated start ``S1``, rings of radius
    ``r_i = 3 sigma0 lam i`` (``i = 1 .. 1/lam``) carry points at ``beta_j = j theta0``
@@ -236,6 +237,17 @@ class Ioap:
         count towards ambiguity.
     ambiguity_mass : float
         Pseudo-likelihood mass beyond ``exclusion_cells`` above which the fix is flagged.
+
+    References
+    ----------
+    .. [1] Zheng, W., Li, Z., & Zhao, S. (2021). Gravity matching by iterative optimal
+       annular points. Chinese patent application (filed 2021-06-30).
+
+    Examples
+    --------
+    >>> import geofix
+    >>> geofix.parse_method_spec("ioap:reference=2").reference
+    2.0
     """
 
     name: ClassVar[str] = "ioap"

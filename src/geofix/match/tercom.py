@@ -3,7 +3,7 @@
 The indicated track is translated, with its shape kept, to every candidate offset of a
 square window centred on the indicated position; the map is read (bilinear) along every
 candidate and scored against the measured sequence; the best candidate is the fix
-(ALGORITHMS.md section 1). Scores, over the ``L`` valid samples (all beams of all points):
+(Golden 1980, below). Scores, over the ``L`` valid samples (all beams of all points):
 
 - ``msd`` -- mean squared difference (minimised; the usual default),
 - ``mad`` -- mean absolute difference (minimised),
@@ -65,6 +65,21 @@ class Tercom:
         The fix is flagged when the map's standard deviation over the matched footprints
         is below this many sensor-noise sigmas (:func:`terrain_snr`); 1 = relief no larger
         than the noise.
+
+    References
+    ----------
+    .. [1] Golden, J. P. (1980). Terrain contour matching (TERCOM): a cruise missile
+       guidance aid. Proc. SPIE 238, Image Processing for Missile Guidance, 10-18.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> scen = geofix.load_scenario("builtin:azores_demo")
+    >>> grid = geofix.prepare_map(scen)
+    >>> trial = geofix.simulate_trial(scen, grid, 0)
+    >>> fix = geofix.Tercom().match(trial.problem(grid), np.random.default_rng(0))
+    >>> bool(np.hypot(*(fix.track[-1] - trial.truth[-1])) < 3 * grid.cell_size)
+    True
     """
 
     name: ClassVar[str] = "tercom"

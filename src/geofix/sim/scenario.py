@@ -134,12 +134,32 @@ def builtin_scenario_path(name: str) -> Path:
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario YAML file.
 
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A YAML file, or ``"builtin:NAME"`` for a scenario shipped with geofix
+        (``azores_demo``, ``navo_flat_singlebeam``, ``navo_flat_multibeam``).
+
+    Returns
+    -------
+    Scenario
+        The validated scenario; its map path is resolved against the file's folder.
+
     Raises
     ------
     ConfigError
         The file is missing, is not YAML, or has a wrong key or value (the message names
         the key, e.g. ``track.speed_m_s: Input should be greater than 0``).
+
+    Examples
+    --------
+    >>> import geofix
+    >>> scen = geofix.load_scenario("builtin:azores_demo")
+    >>> scen.name, scen.sensor.type, scen.trials
+    ('azores-demo', 'singlebeam', 100)
     """
+    if str(path).startswith("builtin:"):
+        path = builtin_scenario_path(str(path).removeprefix("builtin:"))
     path = Path(path)
     try:
         text = path.read_text()

@@ -37,6 +37,13 @@ def prepare_map(scenario: Scenario) -> Grid:
     -------
     Grid
         The prepared map, metric frame.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> grid = geofix.prepare_map(geofix.load_scenario("builtin:azores_demo"))
+    >>> grid.cell_size, grid.kind
+    (1000.0, 'depth')
     """
     from geofix.maps.io import load_grid
 
@@ -165,6 +172,17 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
         A beam footprint of the true track is off the map or on no-data.
     ConfigError
         The start position or the sensor geometry is not given properly.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> scen = geofix.load_scenario("builtin:azores_demo")
+    >>> grid = geofix.prepare_map(scen)
+    >>> trial = geofix.simulate_trial(scen, grid, 3)
+    >>> trial.index, trial.measured.shape
+    (3, (80, 1))
+    >>> bool((trial.indicated != trial.truth).any())  # the INS has drifted
+    True
     """
     track_rng, ins_rng, dvl_rng, sensor_rng = np.random.default_rng([scenario.seed, index]).spawn(4)
     true = _true_track(scenario, grid, track_rng)
