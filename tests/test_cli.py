@@ -105,12 +105,40 @@ def test_unknown_method_and_missing_scenario(scenario_file, tmp_path):
     assert "cannot read scenario" in result.output
 
 
-def test_methods_lists_settings_with_defaults():
-    result = runner.invoke(app, ["methods"])
+def test_methods_lists_every_method_in_one_line_each():
+    from geofix.methods import available_methods
+
+    result = runner.invoke(app, ["methods"], terminal_width=200)
     assert result.exit_code == 0
-    assert "tercom" in result.output
-    assert "window_sigma" in result.output
-    assert "'msd'" in result.output
+    lines = result.output.splitlines()
+    for name in available_methods():
+        assert sum(f"│ {name} " in line for line in lines) == 1, name
+    assert len(lines) < 2 * len(available_methods()) + 10
+
+
+def test_methods_name_describes_every_setting():
+    from geofix.methods import method_settings, setting_descriptions
+
+    result = runner.invoke(app, ["methods", "tercom"], terminal_width=250)
+    assert result.exit_code == 0
+    assert "window_sigma" in result.output and "'msd'" in result.output
+    assert "Half-side of the square search window" in result.output
+    for cls_name in ("Tercom", "TercomIcp", "Pmf", "GaSca"):
+        import geofix
+
+        notes = setting_descriptions(getattr(geofix, cls_name))
+        assert set(notes) == {row[0] for row in method_settings(getattr(geofix, cls_name))}
+        assert all(notes.values()), cls_name  # every setting documented
+    result = runner.invoke(app, ["methods", "nosuch"])
+    assert result.exit_code == 2 and "unknown method 'nosuch'" in result.output
+
+
+def test_version():
+    import geofix
+
+    result = runner.invoke(app, ["--version"])
+    assert result.exit_code == 0
+    assert result.output.strip() == f"geofix {geofix.__version__}"
 
 
 def test_maps_lists_bundled_maps_with_provenance():

@@ -41,8 +41,8 @@ def _imports(path: Path) -> list[tuple[int, str]]:
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             names = [node.module]
-            if node.module == "geofix":
-                names = [f"geofix.{a.name}" for a in node.names]
+            if node.module == "geofix":  # a submodule by name, or a public name
+                names = [f"geofix.{a.name}" for a in node.names if a.name in RANK]
             found += [(node.lineno, n) for n in names if n.startswith("geofix")]
         elif isinstance(node, ast.Import):
             found += [(node.lineno, a.name) for a in node.names if a.name.startswith("geofix")]

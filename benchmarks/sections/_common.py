@@ -11,6 +11,14 @@ FIGURES = ROOT / "docs" / "figures"
 OUT = ROOT / "out" / "results"
 
 
+PROSE = HERE / "prose"
+
+
+def prose(name: str, **values) -> str:
+    """The Markdown text ``sections/prose/NAME.md`` with ``{key}`` fields filled in."""
+    return (PROSE / f"{name}.md").read_text().format_map(values)
+
+
 def scenario(name: str):
     """Load ``benchmarks/scenarios/NAME.yaml``."""
     from geofix.sim.scenario import load_scenario
@@ -84,3 +92,10 @@ def summary_header(success_keys=("20", "40", "60", "80", "100")) -> list[str]:
         "time/match (ms)",
         "failures",
     ]
+
+
+def save_section_figure(fig, name: str) -> str:
+    """Write a figure to ``docs/figures/NAME`` (:func:`geofix.plot.save_figure`); its name."""
+    from geofix.plot import save_figure
+
+    return save_figure(fig, FIGURES / name, dpi=110).name

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from _common import FIGURES, campaign, fmt, md_table, summary_header, summary_rows
+from _common import campaign, fmt, md_table, save_section_figure, summary_header, summary_rows
 
 TITLE = "TERCOM baseline on real bathymetry (foundation)"
 ORDER = 10
@@ -38,14 +38,9 @@ def _timing() -> tuple[float, float]:
 
 
 def _figure(scen, result) -> str:
-    from geofix.cli import _write_figure
+    from geofix.plot.campaign import campaign_result_figure
 
-    path = _write_figure(scen, METHODS[:2], result, FIGURES.parent / "figures_tmp")
-    target = FIGURES / "foundation_azores_demo.png"
-    FIGURES.mkdir(parents=True, exist_ok=True)
-    Path(path).replace(target)
-    Path(path).parent.rmdir()
-    return target.name
+    return save_section_figure(campaign_result_figure(scen, result), "foundation_azores_demo.png")
 
 
 def _mean_ms(result, spec: str) -> float:

@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from sections._common import campaign, fmt, md_table, scenario
+from sections._common import campaign, fmt, md_table, prose, scenario
 
 TITLE = "Source 000 — multibeam matching by GA + sine–cosine refinement, vs multipath ICCP"
 ORDER = 30
@@ -149,32 +149,7 @@ def _terrain_rows() -> list[list]:
 
 # ---------------------------------------------------------------------- text
 def _intro(trials: int) -> str:
-    return f"""Zhang, Zhang and Zhang (J. Chinese Inertial Technology 30(4), 2022) match a
-multibeam swath by a genetic algorithm over a four-parameter transform (translation,
-scale, rotation about the first indicated point), refining each generation's elite with
-the sine–cosine algorithm, and compare it with the multipath parallel ICCP of Wang, Xu
-and Zhang (2018). Methods here: `{GA}` (the source's method), `{MULTIPATH}` (the
-baseline; same three beams and weights), and `iccp` (centre beam only, for reference).
-
-**Map and scaling.** The source's 1 m lake map is not available, and no bundled map
-resolves a 168 m track. We scaled the whole experiment by k = {K:g} in every length,
-horizontal and vertical: the bundled deep-sea multibeam grid `deep_nans` (native
-0.001°, about 107 m) is cut and resampled to 20 m cells, so one 20 m cell stands for one
-1 m source cell and 20 m of depth for 1 m. Speed 3 → 60 m/s, a sample every 4 s, 15
-samples (168 → 3360 m), depth noise 0.3 → 6 m at nadir (2× at the swath edge), initial
-errors (30, 30) → (600, 600) m and (150, 150) → (3000, 3000) m, accelerometer bias
-100 → 2000 µg and noise 50 → 1000 µg/√Hz; the gyro numbers (0.04 °/h, 0.002 °/√h) are
-angles and are kept. The multibeam has 41 beams over 40 source metres. The two track
-areas were chosen by scanning the map for 400 × 400 source-metre squares (fully valid,
-with a valid search area around them) whose depth std and range, divided by k, are
-closest to the source's terrains A and B; the tracks run through their centres with the
-source's headings (A N60°W, B east). Every error below is divided by k, i.e. in source
-metres. {trials} trials per configuration (the source reports one run for Table 3 and 50
-for Table 4); trials differ in the sensor noise, the INS error draws and the GA's
-random numbers. The source gives no GA/SCA settings; ours are in the `GaSca` docstring
-(population 200, SCA 10 × 5, λ = 0.98, weights 0.5/0.25/0.25, Δd = μ1 + μ2σ with
-μ1 = 2 source m and μ2 = 2, search box 3σ of the prior, ±2 % scale, ±2° rotation).
-"""
+    return prose("source000_intro", trials=trials, GA=GA, MULTIPATH=MULTIPATH, K=f"{K:g}")
 
 
 def _terrain_table() -> str:

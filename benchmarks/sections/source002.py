@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sections._common import FIGURES, OUT, campaign, fmt, md_table, scenario
+from sections._common import OUT, campaign, fmt, md_table, save_section_figure, scenario
 
 TITLE = "Source 002 — SITAN and the parallel-filter bank (recursive, multibeam)"
 ORDER = 50
@@ -212,41 +212,19 @@ def _verdict(rows: dict, c: dict) -> str:
 
 # ---------------------------------------------------------------------- figure
 def _figure(result, cell_m: float) -> str:
-    """Error versus time of both filters: median and 10-90 % band, one example trial."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    """Error versus time of both filters: one trial, median and 10-90 % band."""
     from geofix.evaluate.store import ResultStore
+    from geofix.plot import error_band_figure
 
     with ResultStore(OUT / result.scenario) as store:
         frame = store.to_frame(result.scenario_hash, arrays=True)
     frame = frame[frame["method"].isin(FILTERS) & (frame["trial"] < result.trials)]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
-    for spec, colour in zip(FILTERS, ("tab:red", "tab:blue"), strict=True):
+    errors = {}
+    for spec in FILTERS:
         rows = frame[(frame["method"] == spec) & ~frame["failed"].astype(bool)]
-        if rows.empty:
-            continue
-        errors = np.stack(rows["error"].to_list()) / 1e3
-        steps = np.arange(errors.shape[1])
-        axes[0].plot(steps, errors[0], color=colour, label=f"{spec}, trial {rows['trial'].iloc[0]}")
-        lo, med, hi = np.nanpercentile(errors, [10, 50, 90], axis=0)
-        axes[1].fill_between(steps, lo, hi, color=colour, alpha=0.25)
-        axes[1].plot(steps, med, color=colour, label=f"{spec}: median, 10-90 %")
-    for ax in axes:
-        ax.axhline(DIVERGENCE_CELLS * cell_m / 1e3, color="grey", ls="--", lw=0.8)
-        ax.set_yscale("log")
-        ax.set_xlabel("swath (sample)")
-        ax.legend()
-    axes[0].set_ylabel("position error (km)")
-    axes[0].set_title("one trial")
-    axes[1].set_title(f"all {result.trials} trials")
-    fig.tight_layout()
-    FIGURES.mkdir(parents=True, exist_ok=True)
-    path = FIGURES / FIGURE
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+        if not rows.empty:
+            errors[spec] = np.stack(rows["error"].to_list())
+    save_section_figure(error_band_figure(errors, limit_m=DIVERGENCE_CELLS * cell_m), FIGURE)
     return (
         f"\n![Error versus time of SITAN and the SITAN bank](figures/{FIGURE})\n\n"
         "Error versus time (log scale; dashed: 3 cells). Single SITAN wanders off as in "

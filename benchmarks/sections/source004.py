@@ -3,7 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
-from _common import FIGURES, campaign, fmt, md_table, scenario, summary_header, summary_rows
+from _common import (
+    campaign,
+    fmt,
+    md_table,
+    save_section_figure,
+    scenario,
+    summary_header,
+    summary_rows,
+)
 
 TITLE = "Source 004: IOAP ring-domain gravity matching vs TERCOM"
 ORDER = 60
@@ -222,31 +230,13 @@ def _drift_verdict(summary) -> str:
 
 
 def _figure(summary) -> str:
-    import matplotlib
+    from geofix.plot import success_rate_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    name = "source004_success.png"
-    levels = [int(k) for k in LEVELS]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
-    for ax, methods, title in (
-        (axes[0], TEST1, "test 1: sigma multiple"),
-        (axes[1], ["tercom", *TEST2], "test 2: reference radius (3 sigma)"),
-    ):
-        width = 16 / len(methods)
-        for i, method in enumerate(methods):
-            rates = [100 * summary.methods[method].success_rate[k] for k in LEVELS]
-            ax.bar(
-                np.array(levels) + (i - (len(methods) - 1) / 2) * width, rates, width, label=method
-            )
-        ax.set_xticks(levels)
-        ax.set_xlabel("l (m)")
-        ax.set_title(title)
-        ax.legend(fontsize=7)
-    axes[0].set_ylabel("success rate (%)")
-    fig.tight_layout()
-    FIGURES.mkdir(parents=True, exist_ok=True)
-    fig.savefig(FIGURES / name, dpi=110)
-    plt.close(fig)
-    return name
+    panels = {
+        title: {m: {k: summary.methods[m].success_rate[k] for k in LEVELS} for m in methods}
+        for methods, title in (
+            (TEST1, "test 1: sigma multiple"),
+            (["tercom", *TEST2], "test 2: reference radius (3 sigma)"),
+        )
+    }
+    return save_section_figure(success_rate_figure(panels), "source004_success.png")

@@ -57,6 +57,7 @@ _PUBLIC = {
     "SitanBank": "geofix.filters.sitan",
     "Pmf": "geofix.filters.pmf",
     "Pf": "geofix.filters.pf",
+    "FreeIns": "geofix.match.free_ins",
     "available_methods": "geofix.methods",
     "parse_method_spec": "geofix.methods",
     "register": "geofix.methods",

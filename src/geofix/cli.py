@@ -23,6 +23,28 @@ app = typer.Typer(
     no_args_is_help=True,
     help="geofix: terrain- and gravity-aided navigation without GPS.",
 )
+
+
+def _version(show: bool) -> None:
+    if show:
+        from geofix._version import __version__
+
+        print(f"geofix {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_version, is_eager=True, help="Print the version and exit."
+        ),
+    ] = False,
+) -> None:
+    """Geofix: terrain- and gravity-aided navigation without GPS."""
+
+
 _out = Console(width=None if sys.stdout.isatty() else 160)
 _err = Console(stderr=True)
 
@@ -87,7 +109,7 @@ def run(
             return
         _print_summary(result)
         if figure:
-            _out.print(f"figure: {_write_figure(scen, method, result, out)}")
+            _out.print(f"figure: {_write_figure(scen, result, out)}")
 
     _guarded(go)
 
@@ -98,7 +120,7 @@ def demo(
     trials: Annotated[int | None, typer.Option(help="Number of trials.")] = None,
     jobs: Annotated[int | None, typer.Option(help="Worker processes (default: cores).")] = None,
 ) -> None:
-    """TERCOM Monte Carlo on the bundled Azores bathymetry: table and figure."""
+    """TERCOM and the point-mass filter beside the free INS on the Azores: table, figure."""
 
     def go():
         from geofix.console import ProgressBar
@@ -106,36 +128,64 @@ def demo(
         from geofix.sim.scenario import load_scenario
 
         scen = load_scenario(builtin_scenario("azores_demo"))
-        methods = ["tercom", "tercom:metric=mad"]
-        _out.print(f"[bold]{scen.name}[/]: TERCOM on the bundled Azores bathymetry")
+        methods = ["tercom", "pmf", "ins"]
+        _out.print(
+            f"[bold]{scen.name}[/]: TERCOM and the point-mass filter against the free INS "
+            "on the bundled Azores bathymetry"
+        )
         with ProgressBar(scen.name) as bar:
             result = run_campaign(
                 scen, methods, trials=trials, jobs=jobs, out_dir=out, progress=bar
             )
         _print_summary(result)
-        _out.print(f"figure: {_write_figure(scen, methods, result, out)}")
+        _out.print(f"figure: {_write_figure(scen, result, out)}")
 
     _guarded(go)
 
 
 @app.command()
-def methods() -> None:
-    """List every method with its settings and their defaults."""
-    from geofix.methods import available_methods, method_settings
+def methods(
+    name: Annotated[
+        str | None, typer.Argument(help="A method's name: show its settings one by one.")
+    ] = None,
+) -> None:
+    """List the methods; with a NAME, every setting of that method with its default."""
+    from geofix.methods import available_methods, method_settings, method_summary
+    from geofix.methods import setting_descriptions as describe
 
-    for name, cls in available_methods().items():
-        table = Table(title=f"{name} -- {(cls.__doc__ or '').strip().splitlines()[0]}")
-        table.add_column("setting")
-        table.add_column("default")
-        table.add_column("type")
-        for setting, default, kind in method_settings(cls):
-            table.add_row(setting, repr(default), kind)
+    known = available_methods()
+    if name is None:
+        table = Table(title="methods (geofix methods NAME shows one method's settings)")
+        for col in ("name", "runs", "what it is"):
+            table.add_column(col, overflow="fold")
+        for key, cls in known.items():
+            runs = "whole mission" if getattr(cls, "recursive", False) else "leg by leg"
+            table.add_row(key, runs, method_summary(cls))
         _out.print(table)
+        return
+    if name not in known:
+        _fail(f"unknown method {name!r} (known: {', '.join(known)})")
+    cls = known[name]
+    table = Table(title=f"{name}: {method_summary(cls)}")
+    for col in ("setting", "default", "type", "what it does"):
+        table.add_column(col, overflow="fold")
+    notes = describe(cls)
+    for setting, default, kind in method_settings(cls):
+        table.add_row(setting, repr(default), kind, notes[setting])
+    _out.print(table)
+    _out.print(f"use as: --method '{name}:{_example_setting(cls)}'", highlight=False)
+
+
+def _example_setting(cls) -> str:
+    from geofix.methods import method_settings
+
+    rows = method_settings(cls)
+    return f"{rows[0][0]}={rows[0][1]}" if rows else ""
 
 
 @app.command()
 def maps() -> None:
-    """List the bundled maps with their provenance (use them as ``builtin:NAME``)."""
+    """List the bundled maps with their provenance (use them as 'builtin:NAME')."""
     from geofix.maps.bundled import bundled_maps
 
     table = Table(title="bundled maps")
@@ -227,30 +277,12 @@ def _print_summary(result) -> None:
         _out.print(f"{label}: {path}")
 
 
-def _write_figure(scen, specs, result, out: Path) -> Path:
-    """Figure of trial 0 (re-simulated, deterministic) and the campaign's error histograms."""
-    import numpy as np
+def _write_figure(scen, result, out: Path) -> Path:
+    """Write the campaign figure (:func:`geofix.plot.campaign.campaign_result_figure`)."""
+    from geofix.plot.campaign import campaign_result_figure
+    from geofix.plot.figures import save_figure
 
-    from geofix.evaluate.runner import method_rng, run_trial
-    from geofix.methods import parse_method_spec
-    from geofix.plot.figures import campaign_figure, save_figure
-    from geofix.sim.simulate import prepare_map, simulate_trial
-
-    grid = prepare_map(scen)
-    trial = simulate_trial(scen, grid, 0)
-    estimates = {
-        spec: run_trial(
-            parse_method_spec(spec), trial, grid, method_rng(scen.seed, 0, spec)
-        ).estimate
-        for spec in specs
-    }
-    frame = result.frame
-    errors = {
-        spec: np.asarray(frame.loc[frame["method"] == spec, "end_error_m"], dtype=float)
-        for spec in specs
-    }
-    fig = campaign_figure(grid, trial.truth, trial.indicated, estimates, errors, title=scen.name)
-    return save_figure(fig, Path(out) / "campaign.png")
+    return save_figure(campaign_result_figure(scen, result), Path(out) / "campaign.png")
 
 
 def main() -> None:

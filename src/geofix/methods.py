@@ -10,6 +10,8 @@ optionally overrides settings; values are converted to the type of the default.
 from __future__ import annotations
 
 import dataclasses
+import inspect
+import re
 import typing
 
 from geofix.errors import ConfigError
@@ -17,13 +19,15 @@ from geofix.filters.pf import Pf
 from geofix.filters.pmf import Pmf
 from geofix.filters.sitan import Sitan, SitanBank
 from geofix.match.abc import AbcMhd
+from geofix.match.free_ins import FreeIns
 from geofix.match.ga_sca import GaSca
 from geofix.match.iccp import Iccp, MultipathIccp
 from geofix.match.icp import Icp, TercomIcp
 from geofix.match.ioap import Ioap
 from geofix.match.tercom import Tercom
 
-#: The methods geofix ships: batch matchers first, then the recursive filters.
+#: The methods geofix ships: batch matchers first, then the recursive filters, then the
+#: free INS (no matching) as the yardstick.
 BUILTIN_METHODS: tuple[type, ...] = (
     Tercom,
     Iccp,
@@ -37,6 +41,7 @@ BUILTIN_METHODS: tuple[type, ...] = (
     SitanBank,
     Pmf,
     Pf,
+    FreeIns,
 )
 
 _REGISTRY: dict[str, type] = {cls.name: cls for cls in BUILTIN_METHODS}
@@ -83,6 +88,68 @@ def method_settings(cls: type) -> list[tuple[str, object, str]]:
             (f.name, default, getattr(hints.get(f.name), "__name__", str(hints.get(f.name))))
         )
     return rows
+
+
+def method_summary(cls: type) -> str:
+    """The first line of a method class's docstring (what it is, in a few words)."""
+    return (cls.__doc__ or "").strip().splitlines()[0].strip() if cls.__doc__ else ""
+
+
+def setting_descriptions(cls: type) -> dict[str, str]:
+    """One line describing every setting, from the docstring's ``Parameters`` section.
+
+    Parameters
+    ----------
+    cls : type
+        A method class whose numpy-style docstring (or a base class's) documents its
+        settings (fields).
+
+    Returns
+    -------
+    dict
+        ``{setting: first sentence of its description}`` for every setting (``""`` for
+        an undocumented one); RST markup is dropped.
+
+    Examples
+    --------
+    >>> import geofix
+    >>> setting_descriptions(geofix.Tercom)["metric"]
+    '"msd" (default), "mad", "cor" or "ncor".'
+    """
+    documented: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        documented.update(_parameter_blocks(klass.__doc__ or ""))
+    return {name: _first_sentence(documented.get(name, "")) for name, *_ in method_settings(cls)}
+
+
+_SECTIONS = {"Returns", "Raises", "Notes", "References", "Examples", "Attributes", "See Also"}
+
+
+def _parameter_blocks(doc: str) -> dict[str, str]:
+    """``{name: description}`` from a numpy-style docstring's Parameters section."""
+    lines = inspect.cleandoc(doc).splitlines()
+    if "Parameters" not in lines:
+        return {}
+    blocks: dict[str, str] = {}
+    names: list[str] = []
+    for line in lines[lines.index("Parameters") + 2 :]:
+        if line.strip() in _SECTIONS:
+            break
+        if line and not line.startswith(" "):
+            names = [n.strip() for n in line.split(" : ")[0].split(",")]
+            blocks.update(dict.fromkeys(names, ""))
+        elif line.strip():
+            for n in names:
+                blocks[n] = f"{blocks[n]} {line.strip()}".strip()
+    return blocks
+
+
+def _first_sentence(text: str) -> str:
+    """The text up to its first full stop, without RST roles and literals."""
+    text = re.sub(r":\w+:`~?([^`]+)`", r"\1", text)
+    text = re.sub(r"``([^`]*)``", r"\1", text)
+    match = re.match(r"(.+?\.)(\s|$)", text)
+    return match.group(1) if match else text
 
 
 def parse_method_spec(spec: str):

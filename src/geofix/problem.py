@@ -8,7 +8,7 @@ the whole mission at once and returns its estimate at every sample.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
@@ -99,6 +99,26 @@ class MatchProblem:
             check_beam_noise_std(self.beam_noise_std, self.beams, "MatchProblem")
             std = np.asarray(self.beam_noise_std, dtype=float)
         return std**2 + float(self.map_error_std) ** 2
+
+    def nadir(self) -> MatchProblem:
+        """The same problem reduced to the beam nearest nadir (smallest ``|across|``).
+
+        Returns
+        -------
+        MatchProblem
+            ``offsets`` ``(1, 2)`` metres, ``measured`` ``(n, 1)`` and ``beam_noise_std``
+            ``(1,)`` (when given) of that beam; ``self`` for a single beam.
+        """
+        if self.beams == 1:
+            return self
+        k = int(np.argmin(np.abs(self.offsets[:, 0])))
+        noise = self.beam_noise_std
+        return replace(
+            self,
+            offsets=self.offsets[k : k + 1],
+            measured=self.measured[:, k : k + 1],
+            beam_noise_std=None if noise is None else np.asarray(noise, float)[k : k + 1],
+        )
 
     def footprint(self, track: np.ndarray, heading: np.ndarray | None = None) -> tuple:
         """Map positions of every beam for a track.

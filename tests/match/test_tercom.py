@@ -5,7 +5,9 @@ import pytest
 
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.grid import Grid
+from geofix.maps.synthetic import fractal_terrain
 from geofix.match.tercom import Tercom
+from geofix.measurement import predict_track
 from geofix.methods import parse_method_spec
 from geofix.problem import MatchProblem
 
@@ -115,3 +117,30 @@ def test_spec_parsing_and_bad_settings():
         parse_method_spec("tercom:bogus=1")
     with pytest.raises(ConfigError, match="unknown method"):
         parse_method_spec("nosuch")
+
+
+def test_nadir_beams_match_the_nadir_problem():
+    grid = fractal_terrain((120, 120), cell_m=50.0, std=20.0, rng=np.random.default_rng(3))
+    truth = np.column_stack([np.linspace(2000, 4000, 30), np.linspace(2500, 3500, 30)])
+    heading = np.full(30, np.arctan2(2000, 1000))
+    offsets = np.array([[-100.0, 0.0], [0.0, 0.0], [100.0, 0.0]])
+    measured = predict_track(grid, truth, heading, offsets)
+    problem = MatchProblem(
+        grid=grid,
+        indicated=truth + np.array([100.0, -50.0]),
+        heading=heading,
+        offsets=offsets,
+        measured=measured,
+        sigma_position=np.full(30, 100.0),
+        times=np.arange(30.0),
+        noise_std=0.5,
+        sensor="multibeam",
+    )
+    nadir = problem.nadir()
+    assert nadir.offsets.tolist() == [[0.0, 0.0]] and nadir.measured.shape == (30, 1)
+    fix = Tercom(beams="nadir").match(problem)
+    ref = Tercom().match(nadir)
+    np.testing.assert_array_equal(fix.track, ref.track)
+    np.testing.assert_allclose(fix.track[-1], truth[-1], atol=1e-6)
+    with pytest.raises(ConfigError):
+        Tercom(beams="centre")

@@ -195,6 +195,22 @@ def trial_crlb(trial, grid: Grid, beam_var=None) -> TrialBound:
     return TrialBound(float(np.trace(rec[-1])), float(batch))
 
 
+def bound_track(trial, grid: Grid, beam_var=None) -> np.ndarray:
+    """The recursive bound on the RMS position error at every sample of a trial, metres.
+
+    Parameters are those of :func:`trial_crlb`.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n,)`` ``sqrt(trace(J_k^-1))``, metres.
+    """
+    info = trial_information(trial, grid, beam_var)
+    sigma = np.asarray(trial.sigma_position, float)
+    rec = recursive_bound(info, process_variances(sigma), float(sigma[0]) ** 2)
+    return np.sqrt(np.trace(rec, axis1=-2, axis2=-1))
+
+
 def scenario_beam_variance(scenario, offsets) -> np.ndarray:
     """Per-beam measurement variance of a scenario's sensor, field units squared.
 

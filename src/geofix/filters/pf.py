@@ -91,7 +91,7 @@ class PfState:
 
 @dataclass(frozen=True)
 class Pf(RecursiveFilter):
-    """Bootstrap particle filter settings.
+    """Bootstrap particle filter over the horizontal position (systematic resampling).
 
     Parameters
     ----------

@@ -113,7 +113,9 @@ class PmfState:
 
 @dataclass(frozen=True)
 class Pmf(RecursiveFilter):
-    """Point-mass filter settings (defaults are documented choices, see the module text).
+    """Point-mass filter: the Bayesian recursion on a grid that follows the posterior.
+
+    Defaults are documented choices (see the module text).
 
     Parameters
     ----------

@@ -566,7 +566,7 @@ def bank_states(centre: np.ndarray, base_cov: np.ndarray, side: int, spacing: fl
 
 @dataclass(frozen=True)
 class SitanBank(_EkfSettings, RecursiveFilter):
-    """The source's parallel SITAN: ``N x N`` filters, SWRS selection, shrinking re-starts.
+    """The parallel SITAN of source 002: N x N filters, SWRS selection, shrinking restarts.
 
     Every filter is a :class:`Sitan` filter (same settings); the bank is vectorised over
     filters. The estimate is the filter with the lowest SWRS.

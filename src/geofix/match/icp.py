@@ -324,7 +324,7 @@ class TercomIcp(Icp):
 
     def match(self, problem: MatchProblem, rng: np.random.Generator | None = None) -> Fix:
         """TERCOM over the window, then ICP started at the TERCOM track."""
-        coarse_problem = nadir_problem(problem) if self.coarse_beams == "nadir" else problem
+        coarse_problem = problem.nadir() if self.coarse_beams == "nadir" else problem
         coarse = Tercom(metric="msd", window_sigma=self.window_sigma).match(coarse_problem)
         margin = self.fine_margin_cells * problem.grid.cell_size
         result = self.register_cloud(problem, coarse.track, margin)
@@ -335,30 +335,6 @@ class TercomIcp(Icp):
         }
         fix = self._fix(problem, coarse.track, result, extra)
         return dataclasses.replace(fix, evaluations=fix.evaluations + coarse.evaluations)
-
-
-def nadir_problem(problem: MatchProblem) -> MatchProblem:
-    """The same problem reduced to the beam nearest nadir (smallest ``|across|``).
-
-    Parameters
-    ----------
-    problem : MatchProblem
-        A single- or multibeam problem.
-
-    Returns
-    -------
-    MatchProblem
-        ``offsets`` ``(1, 2)`` metres, ``measured`` ``(n, 1)`` and ``beam_noise_std``
-        ``(1,)`` (when given) of that beam.
-    """
-    k = int(np.argmin(np.abs(problem.offsets[:, 0])))
-    noise = problem.beam_noise_std
-    return dataclasses.replace(
-        problem,
-        offsets=problem.offsets[k : k + 1],
-        measured=problem.measured[:, k : k + 1],
-        beam_noise_std=None if noise is None else np.asarray(noise, float)[k : k + 1],
-    )
 
 
 # ---------------------------------------------------------------------- clouds

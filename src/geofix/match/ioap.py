@@ -214,7 +214,7 @@ def snap_to_nodes(grid: Grid, points: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Ioap:
-    """IOAP batch matcher (source 004): SPMP start rings, EPMP end rings, MSD.
+    """IOAP (source 004): ring searches for the start (SPMP) and end (EPMP) points, MSD.
 
     Parameters
     ----------

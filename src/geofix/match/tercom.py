@@ -40,7 +40,7 @@ _METRICS = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3}
 
 @dataclass(frozen=True)
 class Tercom:
-    """TERCOM batch matcher.
+    """TERCOM: exhaustive search over rigid translations of the track (MSD, MAD, COR).
 
     Parameters
     ----------
@@ -65,6 +65,9 @@ class Tercom:
         The fix is flagged when the map's standard deviation over the matched footprints
         is below this many sensor-noise sigmas (:func:`terrain_snr`); 1 = relief no larger
         than the noise.
+    beams : str
+        ``"all"`` matches every beam of a multibeam swath; ``"nadir"`` only the depth
+        profile under the track (the beam nearest nadir), the classic line TERCOM.
 
     References
     ----------
@@ -93,6 +96,7 @@ class Tercom:
     exclusion_cells: float = 3.0
     ambiguity_mass: float = 0.05
     min_terrain_snr: float = 1.0
+    beams: str = "all"
 
     def __post_init__(self) -> None:
         if self.metric not in _METRICS:
@@ -101,9 +105,13 @@ class Tercom:
             )
         if self.step_cells <= 0 or self.window_sigma <= 0:
             raise ConfigError("tercom: step_cells and window_sigma must be positive")
+        if self.beams not in ("all", "nadir"):
+            raise ConfigError(f"tercom: beams must be 'all' or 'nadir', got {self.beams!r}")
 
     def match(self, problem: MatchProblem, rng: np.random.Generator | None = None) -> Fix:
         """Search the window and return the best translation of the indicated track."""
+        if self.beams == "nadir":
+            problem = problem.nadir()
         ox, oy = self.candidate_offsets(problem)
         cost = tercom_cost_surface(problem, ox, oy, self.metric, self.min_valid_fraction)
         if not np.isfinite(cost).any():

@@ -18,6 +18,17 @@ def _pyplot():
     return plt
 
 
+#: One colour, line style and end marker per track, told apart in grey scale too.
+_STYLES = (
+    ("tab:orange", "-", "o"),
+    ("tab:blue", "--", "s"),
+    ("tab:green", "-.", "^"),
+    ("tab:purple", ":", "D"),
+    ("tab:brown", (0, (5, 1, 1, 1)), "v"),
+    ("tab:pink", (0, (1, 1)), "P"),
+)
+
+
 def campaign_figure(
     grid: Grid,
     truth: np.ndarray,
@@ -26,8 +37,17 @@ def campaign_figure(
     end_errors: dict[str, np.ndarray],
     title: str = "",
     margin_m: float | None = None,
+    times: np.ndarray | None = None,
+    bound_track: np.ndarray | None = None,
+    bound_m: float | None = None,
 ):
-    """Map and tracks of one trial beside the end-point error histogram of every method.
+    """Tracks of one trial, its error along the track, and the campaign's error curves.
+
+    Three panels: the map with the true, INS-indicated and estimated tracks of one trial
+    (each track its own colour, line style and end marker, drawn widest first so that
+    tracks lying on one another all stay visible); the error of every track along that
+    trial beside the Cramér–Rao bound; the cumulative share of trials within each
+    end-point error, one step curve per method (no overlapping fills).
 
     Parameters
     ----------
@@ -36,27 +56,44 @@ def campaign_figure(
     truth, indicated : numpy.ndarray
         ``(n, 2)`` true and INS-indicated tracks of the trial shown, metres.
     estimates : dict of str to numpy.ndarray
-        ``(n, 2)`` matched track of that trial per method.
+        ``(n, 2)`` estimated track of that trial per method.
     end_errors : dict of str to numpy.ndarray
-        End-point errors (metres) of every trial per method, for the histograms.
+        End-point errors (metres) of every trial per method.
     title : str
         Figure title.
     margin_m : float, optional
-        Map margin around the tracks, metres (default: a quarter of the track extent,
+        Map margin around the tracks, metres (default: a third of the track extent,
         at least 8 cells).
+    times : numpy.ndarray, optional
+        ``(n,)`` sample times of the trial shown, seconds (default: sample index).
+    bound_track : numpy.ndarray, optional
+        ``(n,)`` bound on the RMS position error at every sample, metres.
+    bound_m : float, optional
+        The campaign's bound on the end-point RMS error, metres.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
     plt = _pyplot()
-    fig, (ax_map, ax_hist) = plt.subplots(1, 2, figsize=(13, 5.5), width_ratios=[1.2, 1])
+    fig, (ax_map, ax_err, ax_cdf) = plt.subplots(
+        1, 3, figsize=(17, 5.6), width_ratios=[1.25, 1, 1], constrained_layout=True
+    )
     _draw_map(ax_map, grid, truth, indicated, estimates, margin_m)
-    _draw_histogram(ax_hist, end_errors, grid.cell_size)
+    t = np.arange(truth.shape[0]) if times is None else np.asarray(times, float) / 60.0
+    _draw_track_errors(ax_err, t, truth, indicated, estimates, bound_track, times is not None)
+    _draw_cdf(ax_cdf, end_errors, grid.cell_size, bound_m)
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
     return fig
+
+
+#: The free INS (method ``ins``) is drawn as the indicated track is.
+_INS_STYLE = ("tab:red", "--", "x")
+
+
+def _track_style(k: int) -> tuple:
+    return _STYLES[k % len(_STYLES)]
 
 
 def _draw_map(ax, grid, truth, indicated, estimates, margin_m):
@@ -68,22 +105,63 @@ def _draw_map(ax, grid, truth, indicated, estimates, margin_m):
     sub = _window(grid, x0, x1, y0, y1)
     km = 1e-3
     image = ax.imshow(
-        sub.values,
-        origin="lower",
-        extent=[v * km for v in _edges(sub)],
-        cmap="viridis" if grid.kind == "gravity" else "cividis",
+        sub.values, origin="lower", extent=[v * km for v in _edges(sub)], cmap="Greys_r"
     )
     ax.figure.colorbar(image, ax=ax, label=f"{grid.kind} ({grid.units})", shrink=0.8)
-    ax.plot(*(truth * km).T, "k-", lw=2, label="true")
-    ax.plot(*(indicated * km).T, "r--", lw=1.5, label="INS indicated")
-    for name, est in estimates.items():
-        ax.plot(*(est * km).T, "-", lw=1.2, label=name)
-    ax.plot(*(truth[0] * km), "ko", ms=5)
+    ax.plot(*(indicated * km).T, color="tab:red", ls="--", lw=1.6, label="INS indicated")
+    ax.plot(*(indicated[-1] * km), "x", color="tab:red", ms=9, mew=2)
+    widths = np.linspace(4.5, 1.5, max(len(estimates), 1))
+    for k, (name, est) in enumerate(estimates.items()):
+        colour, style, marker = _track_style(k)
+        ax.plot(*(est * km).T, color=colour, ls=style, lw=widths[k], alpha=0.9, label=name)
+        ax.plot(*(est[-1] * km), marker, color=colour, ms=9, mec="k", mew=0.8)
+    ax.plot(*(truth * km).T, color="k", lw=1.2, label="true")
+    ax.plot(*(truth[0] * km), "k>", ms=7)
+    ax.plot(*(truth[-1] * km), "k*", ms=12, mec="w", mew=0.8)
+    ax.set_xlim(x0 * km, x1 * km)
+    ax.set_ylim(y0 * km, y1 * km)
     ax.set_xlabel("east (km)")
     ax.set_ylabel("north (km)")
     ax.set_aspect("equal")
-    ax.legend(loc="best", fontsize=8)
-    ax.set_title("trial 0")
+    ax.legend(loc="best", fontsize=8, framealpha=0.9)
+    ax.set_title("trial 0: tracks (end points marked)")
+
+
+def _draw_track_errors(ax, t, truth, indicated, estimates, bound_track, minutes: bool):
+    ax.plot(t, np.hypot(*(indicated - truth).T), color="tab:red", ls="--", label="INS")
+    for k, (name, est) in enumerate(estimates.items()):
+        colour, style, _ = _track_style(k)
+        ax.plot(t, np.hypot(*(est - truth).T), color=colour, ls=style, lw=1.6, label=name)
+    if bound_track is not None:
+        ax.plot(t, bound_track, color="k", lw=1, label="CRLB (RMS)")
+    ax.set_yscale("log")
+    ax.set_xlabel("time (min)" if minutes else "sample")
+    ax.set_ylabel("position error (m)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("trial 0: error along the track")
+
+
+def _draw_cdf(ax, end_errors, cell_m, bound_m):
+    methods = [name for name in end_errors if name != "ins"]
+    for name, values in end_errors.items():
+        v = np.sort(np.asarray(values, float)[np.isfinite(values)])
+        if not v.size:
+            continue
+        colour, style, _ = _INS_STYLE if name == "ins" else _track_style(methods.index(name))
+        share = np.arange(1, v.size + 1) / np.asarray(values).size
+        label = f"{name} (RMS {np.sqrt(np.mean(v**2)):.0f} m)"
+        ax.step(v, share, where="post", color=colour, ls=style, lw=1.8, label=label)
+    ax.axvline(cell_m, color="0.4", ls=":", lw=1, label=f"1 cell ({cell_m:.0f} m)")
+    if bound_m is not None:
+        ax.axvline(bound_m, color="k", lw=1, label=f"CRLB, end RMS ({bound_m:.0f} m)")
+    ax.set_xscale("log")
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("end-point error (m)")
+    ax.set_ylabel("share of trials within")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    ax.set_title("end-point error over the campaign")
 
 
 def _window(grid: Grid, x0, x1, y0, y1) -> Grid:
@@ -100,17 +178,113 @@ def _edges(grid: Grid) -> list[float]:
     return [w - grid.dx / 2, e + grid.dx / 2, s - grid.dy / 2, n + grid.dy / 2]
 
 
-def _draw_histogram(ax, end_errors, cell_m):
-    finite = [np.asarray(v)[np.isfinite(v)] for v in end_errors.values()]
-    top = max((float(v.max()) for v in finite if v.size), default=1.0)
-    bins = np.linspace(0, max(top, 1e-9) * 1.05, 25)
-    for (name, _), values in zip(end_errors.items(), finite, strict=True):
-        ax.hist(values, bins=bins, alpha=0.6, label=f"{name} (mean {values.mean():.1f} m)")
-    ax.axvline(cell_m, color="k", ls=":", lw=1, label=f"1 cell ({cell_m:.0f} m)")
-    ax.set_xlabel("end-point error (m)")
-    ax.set_ylabel("trials")
-    ax.legend(fontsize=8)
-    ax.set_title("end-point error over the campaign")
+def error_band_figure(errors: dict[str, np.ndarray], limit_m: float | None = None, x=None):
+    """Error versus sample of several methods: one trial, and the median with a band.
+
+    Parameters
+    ----------
+    errors : dict of str to numpy.ndarray
+        ``(trials, n)`` position errors, metres, per method (row 0 is the trial drawn
+        alone).
+    limit_m : float, optional
+        A horizontal reference line (a divergence threshold, say), metres.
+    x : numpy.ndarray, optional
+        ``(n,)`` abscissa (default: sample index).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Two panels (log scale, kilometres): the first trial; the median and 10-90 % band.
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True, constrained_layout=True)
+    for k, (spec, e) in enumerate(errors.items()):
+        colour, style, _ = _track_style(k)
+        e = np.asarray(e, float) / 1e3
+        steps = np.arange(e.shape[1]) if x is None else np.asarray(x)
+        axes[0].plot(steps, e[0], color=colour, ls=style, label=spec)
+        lo, med, hi = np.nanpercentile(e, [10, 50, 90], axis=0)
+        axes[1].fill_between(steps, lo, hi, color=colour, alpha=0.2, lw=0)
+        axes[1].plot(steps, med, color=colour, ls=style, label=f"{spec}: median, 10-90 %")
+    for ax in axes:
+        if limit_m is not None:
+            ax.axhline(limit_m / 1e3, color="grey", ls="--", lw=0.8)
+        ax.set_yscale("log")
+        ax.set_xlabel("sample")
+        ax.legend(fontsize=8)
+    axes[0].set_ylabel("position error (km)")
+    axes[0].set_title("one trial")
+    axes[1].set_title(f"all {len(next(iter(errors.values())))} trials")
+    return fig
+
+
+def leg_errors_figure(panels: dict[str, dict[str, np.ndarray]], limit_m: float | None = None):
+    """Mean error at the end of each leg, one panel per run, one line per method.
+
+    Parameters
+    ----------
+    panels : dict
+        ``{panel title: {method: (legs,) mean end error of every leg, metres}}``.
+    limit_m : float, optional
+        A horizontal reference line (a claim of the source, say), metres.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(5.5 * len(panels), 4), sharey=True, constrained_layout=True
+    )
+    for ax, (title, lines) in zip(np.atleast_1d(axes), panels.items(), strict=True):
+        for k, (spec, legs) in enumerate(lines.items()):
+            colour, style, marker = _track_style(k)
+            legs = np.asarray(legs, float)
+            ax.plot(
+                np.arange(1, legs.size + 1), legs, color=colour, ls=style, marker=marker, label=spec
+            )
+        if limit_m is not None:
+            ax.axhline(limit_m, color="grey", lw=0.8, ls="--", label=f"{limit_m:g} m")
+        ax.set_title(title)
+        ax.set_xlabel("leg (match)")
+        ax.legend(fontsize=8)
+    np.atleast_1d(axes)[0].set_ylabel("mean error at the end of the leg (m)")
+    return fig
+
+
+def success_rate_figure(panels: dict[str, dict[str, dict[str, float]]], xlabel: str = "l (m)"):
+    """Success rate against a threshold, one panel per test, grouped bars per method.
+
+    Parameters
+    ----------
+    panels : dict
+        ``{panel title: {method: {threshold label: share in [0, 1]}}}``; the threshold
+        labels are numbers (``"20"``, ``"40"``...).
+    xlabel : str
+        Label of the threshold axis.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(
+        1, len(panels), figsize=(5 * len(panels), 3.8), sharey=True, constrained_layout=True
+    )
+    for ax, (title, methods) in zip(np.atleast_1d(axes), panels.items(), strict=True):
+        levels = [float(k) for k in next(iter(methods.values()))]
+        width = 0.8 * (levels[1] - levels[0] if len(levels) > 1 else 1.0) / len(methods)
+        for i, (method, rates) in enumerate(methods.items()):
+            colour = _track_style(i)[0]
+            offset = (i - (len(methods) - 1) / 2) * width
+            values = [100 * (v or 0.0) for v in rates.values()]
+            ax.bar(np.array(levels) + offset, values, width, color=colour, label=method)
+        ax.set_xticks(levels)
+        ax.set_xlabel(xlabel)
+        ax.set_title(title)
+        ax.legend(fontsize=7)
+    np.atleast_1d(axes)[0].set_ylabel("success rate (%)")
+    return fig
 
 
 def save_figure(fig, path: str | Path, dpi: int = 120) -> Path:
