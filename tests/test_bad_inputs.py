@@ -323,3 +323,53 @@ def test_jobs_above_the_cores_warn_in_one_line_and_are_capped(tmp_path):
         f"warning: --jobs 999 is more than the {usable_cores()} usable cores; "
         f"using {usable_cores()}"
     ]
+
+
+# ---------------------------------------------------------------------- honest caches, terminal
+def test_map_replaced_by_other_values_of_the_same_size_is_recomputed(tmp_path):
+    from geofix.evaluate.store import scenario_hash
+    from geofix.sim.scenario import load_scenario
+
+    rng = np.random.default_rng(4)
+    path = tmp_path / "m.nc"
+    save_grid(Grid(rng.normal(size=(30, 30)), 0.0, 0.0, 100.0, 100.0, name="m"), path)
+    scenario = load_scenario(_map_mission(tmp_path, str(path)))
+    first = scenario_hash(scenario)
+    size = path.stat().st_size
+    save_grid(Grid(rng.normal(size=(30, 30)), 0.0, 0.0, 100.0, 100.0, name="m"), path)
+    assert path.stat().st_size == size
+    assert scenario_hash(scenario) != first
+    assert scenario_hash(scenario) == scenario_hash(scenario)
+
+
+def test_summary_table_fits_80_columns_without_cutting_numbers():
+    import io
+
+    from rich.console import Console
+
+    from geofix.evaluate.campaign import _TABLE_COLUMNS, summary_table
+
+    stats = {
+        "trials": 1000,
+        "failures": 12,
+        "mean_error_m": 123456.7,
+        "std_error_m": 23456.7,
+        "median_error_m": 3456.7,
+        "max_error_m": 987654.3,
+        "mean_track_error_m": 45678.9,
+        "success_rate": {"100": 0.5, "1c": 0.25, "3c": 0.75},
+        "mean_time_s": 12.345678,
+    }
+    specs = ["tercom:metric=mad,window_sigma=4", "pmf", "iccp-multipath:max_iterations=30"]
+    summary = {"scenario": "wide", "trials": 1000, "methods": dict.fromkeys(specs, stats)}
+    console = Console(file=io.StringIO(), width=80)
+    console.print(summary_table(summary, width=80))
+    text = console.file.getvalue()
+    assert max(len(line) for line in text.splitlines()) <= 80
+    assert "…" not in text
+    for number in ("123456.7", "3456.7", "12345.68", "50%"):
+        assert number in text
+    assert "left out to fit" in text
+    full = Console(file=io.StringIO(), width=250)
+    full.print(summary_table(summary))
+    assert all(head in full.file.getvalue() for head, _ in _TABLE_COLUMNS)

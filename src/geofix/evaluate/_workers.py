@@ -5,30 +5,53 @@ A worker of the local process pool calls :func:`bind_to_parent` from the pool's
 initializer. Then
 
 - on Linux, the kernel sends it ``SIGKILL`` when the parent dies, however it dies
-  (``prctl(PR_SET_PDEATHSIG)``), and
+  (``prctl(PR_SET_PDEATHSIG)``; armed already while the worker imports, see
+  :mod:`geofix._lifetime`), and
 - everywhere, a daemon thread polls the parent's pid and ends the worker within
   :data:`WATCHDOG_PERIOD_S` seconds once the parent is gone (the fallback where
   ``prctl`` is missing, and the guard against the race of a parent dying before the
   signal was armed);
 - ``SIGINT`` is ignored: a Ctrl-C in the terminal reaches the whole process group, and
   the parent, which owns the store, stops the workers itself (:func:`stop_workers`)
-  instead of every worker printing its own traceback.
+  instead of every worker printing its own traceback. The parent starts its workers
+  inside :func:`sigint_deferred`, so that they hold a Ctrl-C from their very first
+  instruction (one while a worker still imports would otherwise print a traceback).
 """
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import ctypes.util
 import os
 import signal
-import sys
 import threading
 import time
 
+from geofix._lifetime import announce_parent, arm_parent_death_signal
+
 #: Seconds between two checks of the parent's pid by the watchdog thread.
 WATCHDOG_PERIOD_S = 0.5
-_PR_SET_PDEATHSIG = 1
+
+
+@contextlib.contextmanager
+def sigint_deferred():
+    """Block ``SIGINT`` in this thread for the duration; a Ctrl-C meanwhile comes after.
+
+    Worker processes started now inherit the blocked signal, so a Ctrl-C while they still
+    import stays pending in them until :func:`bind_to_parent` ignores it; in this process
+    it is delivered (as KeyboardInterrupt) when the block ends. Starting a spawned worker
+    can take seconds (its interpreter must start to read its arguments), so ignoring the
+    signal instead would lose a Ctrl-C. A no-op where signal masks do not exist.
+    """
+    announce_parent()
+    block = getattr(signal, "pthread_sigmask", None)
+    if block is None:
+        yield
+        return
+    previous = block(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        block(signal.SIG_SETMASK, previous)
 
 
 def bind_to_parent(parent_pid: int) -> None:
@@ -40,25 +63,16 @@ def bind_to_parent(parent_pid: int) -> None:
         Pid of the process that started this worker (``os.getpid()`` in the parent).
     """
     with contextlib.suppress(ValueError, OSError):  # not the main thread / no signals
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _arm_parent_death_signal()
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # discards a pending Ctrl-C
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    arm_parent_death_signal()
     if os.getppid() != parent_pid:
         os._exit(1)
     thread = threading.Thread(
         target=_watch_parent, args=(parent_pid,), name="geofix-parent-watchdog", daemon=True
     )
     thread.start()
-
-
-def _arm_parent_death_signal() -> bool:
-    """``prctl(PR_SET_PDEATHSIG, SIGKILL)`` on Linux; False where it is not available."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        return libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
-    except (OSError, AttributeError):
-        return False
 
 
 def _watch_parent(parent_pid: int) -> None:

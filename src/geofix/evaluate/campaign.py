@@ -40,7 +40,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from geofix.errors import ConfigError, GeofixError, GeofixWarning
-from geofix.evaluate._workers import bind_to_parent, stop_workers
+from geofix.evaluate._workers import bind_to_parent, sigint_deferred, stop_workers
 from geofix.evaluate.crlb import rms_bound, scenario_beam_variance, trial_crlb
 from geofix.evaluate.metrics import end_mahalanobis, summarize
 from geofix.evaluate.runner import TrialResult, method_rng, run_trial
@@ -469,7 +469,8 @@ def _run_pool(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator[_Don
     )
     finished = False
     try:
-        futures = [pool.submit(_pool_task, simulate_trial, scenario, task) for task in tasks]
+        with sigint_deferred():  # workers are started by the submits
+            futures = [pool.submit(_pool_task, simulate_trial, scenario, task) for task in tasks]
         for future in as_completed(futures):
             try:
                 yield future.result()
