@@ -13,7 +13,8 @@ PACKAGE = Path(geofix.__file__).parent
 #: Bottom up. A module may import its own layer's package and any layer below it; modules
 #: on one line are siblings that do not import each other.
 LAYERS = (
-    ("errors", "conventions", "_strict", "_version"),
+    ("errors", "conventions", "_strict", "_version", "_lifetime"),
+    ("memory",),
     ("maps",),
     ("nav", "sensors"),
     ("problem",),

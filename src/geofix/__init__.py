@@ -19,9 +19,13 @@ Examples
 
 from __future__ import annotations
 
-import importlib
+from geofix import _lifetime
 
-from geofix._version import __version__ as __version__
+_lifetime.arm_in_spawned_worker()  # first: a worker starting up dies with its parent
+
+import importlib  # noqa: E402
+
+from geofix._version import __version__ as __version__  # noqa: E402
 
 #: Public name -> module that defines it.
 _PUBLIC = {

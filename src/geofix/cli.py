@@ -8,7 +8,9 @@ exactly; they may be extended).
 from __future__ import annotations
 
 import json
+import os
 import sys
+import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -33,36 +35,83 @@ def _version(show: bool) -> None:
         raise typer.Exit()
 
 
+_out = Console(width=None if sys.stdout.isatty() else 160)
+_err = Console(stderr=True)
+
+
 @app.callback()
-def _main(
+def _options(
     version: Annotated[
         bool,
         typer.Option(
             "--version", callback=_version, is_eager=True, help="Print the version and exit."
         ),
     ] = False,
+    memory_budget: Annotated[
+        str | None,
+        typer.Option(
+            help="Largest memory one command (or worker) may allocate: 2GiB, 500MB, 25% "
+            "(of RAM). Default: GEOFIX_MEMORY_BUDGET, else half the RAM.",
+        ),
+    ] = None,
 ) -> None:
     """Geofix: terrain- and gravity-aided navigation without GPS."""
+    if memory_budget is not None:
+        from geofix.memory import ENV_VAR, parse_size
+
+        def check():
+            parse_size(memory_budget)
+            os.environ[ENV_VAR] = memory_budget  # inherited by worker processes
+
+        _guarded(check)
 
 
-_out = Console(width=None if sys.stdout.isatty() else 160)
-_err = Console(stderr=True)
+def _one_line(message: str) -> str:
+    return " ".join(str(message).split())
+
+
+def _print_line(prefix: str, message: str) -> None:
+    """Print ``prefix message`` on one stderr line: plain text, never wrapped or parsed."""
+    sys.stderr.write(f"{prefix} {_one_line(message)}\n")
+    sys.stderr.flush()
 
 
 def _fail(message: str) -> None:
-    _err.print(f"[bold red]error:[/] {message}", highlight=False)
+    _print_line("error:", message)
     raise typer.Exit(code=2)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    _print_line("warning:", str(message))
+
+
 def _guarded(fn):
-    """Turn a GeofixError into one clear line on stderr and exit code 2."""
+    """Run ``fn``; turn any error into one clear line on stderr and exit code 2.
+
+    A :class:`GeofixError` prints its message; a MemoryError or an operating-system error
+    (unwritable output, full disk) prints what failed; Ctrl-C prints how to resume
+    (exit 130). Anything else is a bug in geofix: it is reported in one line too, unless
+    ``GEOFIX_DEBUG`` is set, which shows the traceback.
+    """
+    warnings.showwarning = _show_warning
     try:
         return fn()
     except GeofixError as exc:
         _fail(str(exc))
     except KeyboardInterrupt:
-        _err.print("interrupted: finished trials are stored; run the same command to resume")
+        _print_line("interrupted:", "finished trials are stored; run the same command to resume")
         raise typer.Exit(code=130) from None
+    except MemoryError:
+        _fail("out of memory (lower the sizes, or see --memory-budget)")
+    except OSError as exc:
+        where = f" {exc.filename}" if exc.filename else ""
+        _fail(f"{exc.strerror or type(exc).__name__}:{where}")
+    except (typer.Exit, typer.Abort):
+        raise
+    except Exception as exc:
+        if os.environ.get("GEOFIX_DEBUG"):
+            raise
+        _fail(f"internal error {type(exc).__name__}: {exc} (set GEOFIX_DEBUG=1 for details)")
 
 
 @app.command()
@@ -219,15 +268,17 @@ def suitability(
     def go():
         import numpy as np
 
-        from geofix.evaluate.suitability import save_suitability
+        from geofix.evaluate.suitability import require_relief, save_suitability
         from geofix.evaluate.suitability import suitability as compute
         from geofix.maps.io import load_grid
         from geofix.plot.suitability import save_suitability_figure
 
+        _make_out_dir(out)
         grid = load_grid(
             map_path, variable=variable, kind=kind, region=region, resample_m=resample_m
         )
         result = compute(grid, window_cells=window_cells, noise_std=noise_std)
+        require_relief(result)
         crlb = result.crlb.values[np.isfinite(result.crlb.values)]
         if crlb.size:
             q = np.percentile(crlb, [10, 50, 90])
@@ -262,6 +313,16 @@ def export(
     _guarded(go)
 
 
+def _make_out_dir(out: Path) -> None:
+    """Create the output folder now, before any work, or fail naming it."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise GeofixError(f"cannot create --out folder {out}: {exc.strerror or exc}") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise GeofixError(f"cannot write in --out folder {out} (permission denied)")
+
+
 def builtin_scenario(name: str) -> Path:
     """Path of a scenario shipped inside the package."""
     from geofix.sim.scenario import builtin_scenario_path
@@ -272,7 +333,7 @@ def builtin_scenario(name: str) -> Path:
 def _print_summary(result) -> None:
     from geofix.console import summary_table
 
-    _out.print(summary_table(result.summary))
+    _out.print(summary_table(result.summary, width=_out.width))
     for label, path in result.paths.items():
         _out.print(f"{label}: {path}")
 

@@ -36,26 +36,37 @@ class ProgressBar:
             disable=not enabled,
         )
         self._task = self._progress.add_task(name, total=None)
+        self._started = False
 
     def __enter__(self) -> ProgressBar:
-        self._progress.start()
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, *exc) -> None:
+        if not self._started:
+            return
+        if exc_type is not None:
+            self._progress.live.transient = True  # the error line alone, no stale bar
         self._progress.stop()
 
     def __call__(self, done: int, total: int) -> None:
-        """Show ``done`` of ``total`` results."""
+        """Show ``done`` of ``total`` results (the bar appears with the first call)."""
+        if not self._started:
+            self._progress.start()
+            self._started = True
         self._progress.update(self._task, completed=done, total=total)
 
 
-def summary_table(summary: CampaignSummary) -> Table:
+def summary_table(summary: CampaignSummary, width: int | None = None) -> Table:
     """A printable table of a campaign summary.
 
     Parameters
     ----------
     summary : CampaignSummary
         As returned in :attr:`geofix.evaluate.campaign.CampaignResult.summary`.
+    width : int, optional
+        Terminal width, characters. When the full table is wider, the least important
+        columns are left out (named in the caption) and long method names wrap; numbers
+        are never cut.
 
     Returns
     -------
@@ -65,13 +76,43 @@ def summary_table(summary: CampaignSummary) -> Table:
         3 cells (%), mean time per ``match`` call (milliseconds).
     """
     title = f"{summary.scenario}: {summary.trials} trials, errors in metres"
-    table = Table(title=title)
-    table.add_column("method", style="bold", no_wrap=True)
-    for head, _ in _TABLE_COLUMNS:
-        table.add_column(head, justify="right")
-    for spec, stats in summary.methods.items():
-        table.add_row(spec, *(cell(stats) for _, cell in _TABLE_COLUMNS))
+    rows = {
+        spec: [cell(stats) for _, cell in _TABLE_COLUMNS] for spec, stats in summary.methods.items()
+    }
+    widths = [
+        max([len(head), *(len(r[k]) for r in rows.values())])
+        for k, (head, _) in enumerate(_TABLE_COLUMNS)
+    ]
+    keep = _columns_that_fit(widths, max(map(len, rows), default=6), width)
+    dropped = [head for k, (head, _) in enumerate(_TABLE_COLUMNS) if k not in keep]
+    caption = f"left out to fit: {', '.join(dropped)} (--json has all)" if dropped else None
+    table = Table(title=title, caption=caption)
+    table.add_column("method", style="bold", overflow="fold")
+    for k in keep:
+        table.add_column(_TABLE_COLUMNS[k][0], justify="right", no_wrap=True, min_width=widths[k])
+    for spec, cells in rows.items():
+        table.add_row(spec, *(cells[k] for k in keep))
     return table
+
+
+#: Columns left out first when the table does not fit the terminal (by header).
+_DROP_ORDER = ("track", "std", "≤1 cell", "max", "trials", "≤3 cells", "failed")
+_METHOD_MIN_WIDTH = 12
+
+
+def _columns_that_fit(widths: list[int], method_width: int, width: int | None) -> list[int]:
+    """Indices of the table columns to show within ``width`` characters (all if None)."""
+    keep = list(range(len(widths)))
+    if width is None:
+        return keep
+    method = min(method_width, _METHOD_MIN_WIDTH)
+    heads = [head for head, _ in _TABLE_COLUMNS]
+    for head in _DROP_ORDER:
+        # one border per column plus the outer one, one space of padding on each side
+        if 1 + (method + 3) + sum(widths[k] + 3 for k in keep) <= width:
+            break
+        keep.remove(heads.index(head))
+    return keep
 
 
 def _fmt(value: float | None, digits: int = 1, scale: float = 1.0) -> str:

@@ -24,3 +24,11 @@ class TrackOffMapError(GeofixError):
 
 class MatchError(GeofixError):
     """A matcher could not produce a fix (for example an all-NaN search window)."""
+
+
+class MemoryBudgetError(GeofixError):
+    """An input would need more memory than the budget allows (see :mod:`geofix.memory`)."""
+
+
+class GeofixWarning(UserWarning):
+    """Something was adjusted rather than refused (e.g. ``--jobs`` capped at the cores)."""

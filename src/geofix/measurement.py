@@ -26,6 +26,7 @@ from scipy.ndimage import map_coordinates
 
 from geofix.maps.grid import Grid
 from geofix.maps.terrain import gradient, plane_fit
+from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import footprint_xy
 
 OFF_MAP_LOG_LIKELIHOOD = -1e6
@@ -58,6 +59,11 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
     offsets = np.asarray(offsets, dtype=float)
     # The beam offsets in metres are the same for every hypothesis: add them in cells.
     ox, oy = footprint_xy(np.zeros(2), np.asarray(heading, dtype=float), offsets)
+    hypotheses = positions.size // 2
+    check_allocation(
+        cells_bytes(hypotheses, offsets.shape[0], copies=6),
+        f"map prediction of {hypotheses} hypotheses x {offsets.shape[0]} beams",
+    )
     col, row = grid.xy_to_cell(positions[..., 0].ravel(), positions[..., 1].ravel())
     coords = np.empty((2, col.size, offsets.shape[0]))
     np.add(row[:, None], oy / grid.dy, out=coords[0])

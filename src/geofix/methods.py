@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 import re
 import typing
 
@@ -189,11 +190,18 @@ def parse_method_spec(spec: str):
     for item in filter(None, (p.strip() for p in rest.split(","))):
         key, eq, raw = item.partition("=")
         key = key.strip()
-        if not eq or key not in settings:
+        if key not in settings:
             raise ConfigError(
                 f"method {name!r}: unknown setting {key!r} in {spec!r} "
                 f"(settings: {', '.join(settings)})"
             )
+        if not eq:
+            raise ConfigError(
+                f"method {name!r}: setting {key!r} in {spec!r} has no value; "
+                f"write {key}=VALUE (default {settings[key][1]!r})"
+            )
+        if key in kwargs:
+            raise ConfigError(f"method {name!r}: setting {key!r} given twice in {spec!r}")
         kwargs[key] = _convert(raw.strip(), settings[key][1], f"{name}:{key}")
     try:
         return cls(**kwargs)
@@ -202,6 +210,14 @@ def parse_method_spec(spec: str):
 
 
 def _convert(raw: str, default: object, where: str):
+    value = _convert_raw(raw, default, where)
+    numbers = value if isinstance(value, tuple) else (value,)
+    if any(isinstance(v, float) and not math.isfinite(v) for v in numbers):
+        raise ConfigError(f"{where}: value must be a finite number, got {raw!r}")
+    return value
+
+
+def _convert_raw(raw: str, default: object, where: str):
     try:
         if isinstance(default, bool):
             if raw.lower() in ("1", "true", "yes", "on"):

@@ -40,7 +40,10 @@ def _assert_same_trial(a, b):
             {"type": "multibeam", "beams": 5, "swath_width_m": 2000.0, "noise_std": 2.0},
             {"dvl": {"noise_std_m_s": 0.02}},
         ),
-        ({"type": "gravimeter", "noise_std": 1.0, "lag_s": 30.0}, {}),
+        (
+            {"type": "gravimeter", "noise_std": 1.0, "lag_s": 30.0},
+            {"map": {"path": "builtin:mb_1km", "kind": "gravity"}},
+        ),
     ],
     ids=["multibeam-dvl", "gravimeter-lag"],
 )

@@ -18,14 +18,17 @@ false-fix rule.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
 import json
 import multiprocessing
 import os
 import sqlite3
+import warnings
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +36,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from geofix.errors import ConfigError, GeofixError
+from geofix.errors import ConfigError, GeofixError, GeofixWarning
+from geofix.evaluate._workers import bind_to_parent, sigint_deferred, stop_workers
 from geofix.evaluate.crlb import rms_bound, scenario_beam_variance, trial_crlb
 from geofix.evaluate.metrics import end_mahalanobis, summarize
 from geofix.evaluate.runner import TrialResult, method_rng, run_trial
@@ -41,7 +45,7 @@ from geofix.evaluate.store import ResultStore, scenario_hash
 from geofix.evaluate.summary import CampaignSummary
 from geofix.maps.grid import Grid
 from geofix.methods import parse_method_spec
-from geofix.sim.scenario import Scenario
+from geofix.sim.scenario import Scenario, with_overrides
 
 SUMMARY_NAME = "summary.json"
 
@@ -177,11 +181,12 @@ def run_campaign(
     scenario = _override(scenario, trials, seed)
     parsed = _parse_methods(methods)
     jobs = _check_jobs(jobs)
+    out = Path(out_dir)
+    check_out_dir(out)
     simulate = importlib.import_module("geofix.sim.simulate")
     grid = simulate.prepare_map(scenario)
-    simulate.simulate_trial(scenario, grid, 0)
+    check_methods_fit(parsed, simulate.simulate_trial(scenario, grid, 0))
     shash = scenario_hash(scenario)
-    out = Path(out_dir)
     with ResultStore(out) as store:
         tasks = _pending_tasks(parsed, scenario.trials, store.done_keys(shash))
         backend = _backend(jobs, scheduler, len(tasks))
@@ -210,14 +215,47 @@ def _no_progress(done: int, total: int) -> None:
 
 
 def _override(scenario: Scenario, trials: int | None, seed: int | None) -> Scenario:
-    update = {}
-    if trials is not None:
-        if int(trials) < 1:
-            raise ConfigError(f"trials must be at least 1, got {trials}")
-        update["trials"] = int(trials)
-    if seed is not None:
-        update["seed"] = int(seed)
-    return scenario.model_copy(update=update) if update else scenario
+    return with_overrides(scenario, trials, seed)
+
+
+def check_out_dir(out: Path) -> None:
+    """Refuse an output folder the campaign could not finish in, before any trial runs.
+
+    Raises
+    ------
+    GeofixError
+        ``out`` is a file, ``out/summary.json`` or ``out/results.sqlite`` is a folder, or
+        ``out`` (or the nearest existing parent) is not writable.
+    """
+    if out.exists() and not out.is_dir():
+        raise GeofixError(f"--out {out} is a file, not a folder")
+    for name in (SUMMARY_NAME, "results.sqlite"):
+        if (out / name).is_dir():
+            raise GeofixError(f"{out / name} is a folder; remove it or choose another --out")
+    existing = next((p for p in (out, *out.parents) if p.exists()), None)
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        raise GeofixError(f"--out {out}: cannot write in {existing} (permission denied)")
+
+
+def check_methods_fit(parsed: dict[str, object], trial) -> None:
+    """Refuse a method that cannot work with the scenario's sensor (e.g. ICP on one beam).
+
+    A method class may declare ``min_beams`` (a ``ClassVar``): the fewest beams per
+    sample it needs.
+
+    Raises
+    ------
+    ConfigError
+        Naming the method, what it needs and what the sensor gives.
+    """
+    beams = int(np.asarray(trial.offsets).shape[0])
+    for spec, method in parsed.items():
+        need = int(getattr(method, "min_beams", 1))
+        if beams < need:
+            raise ConfigError(
+                f"method {spec!r} needs a sensor with at least {need} beams per sample "
+                f"(a multibeam swath); the scenario's {trial.sensor} gives {beams}"
+            )
 
 
 def _parse_methods(methods: list[str]) -> dict[str, object]:
@@ -384,10 +422,28 @@ def _with_integrity(frame: pd.DataFrame, infos: dict) -> pd.DataFrame:
 
 
 def _check_jobs(jobs: int | None) -> int:
-    jobs = (os.cpu_count() or 1) if jobs is None else int(jobs)
+    cores = usable_cores()
+    if jobs is None:
+        return cores
+    jobs = int(jobs)
     if jobs < 1:
-        raise ConfigError(f"jobs must be at least 1, got {jobs}")
+        raise ConfigError(f"jobs (--jobs) must be at least 1, got {jobs}")
+    if jobs > cores:
+        warnings.warn(
+            f"--jobs {jobs} is more than the {cores} usable cores; using {cores}",
+            GeofixWarning,
+            stacklevel=3,
+        )
+        return cores
     return jobs
+
+
+def usable_cores() -> int:
+    """CPU cores this process may run on (its affinity mask where the system has one)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
 
 
 def _backend(jobs: int, scheduler, n_tasks: int) -> Callable:
@@ -406,9 +462,11 @@ def _run_inline(simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
 _WORKER_GRID: Grid | None = None
 
 
-def _init_worker(grid: Grid) -> None:
-    """Pool initializer: keep the map for every task of this worker; one numba thread."""
+def _init_worker(grid: Grid, parent_pid: int | None = None) -> None:
+    """Pool initializer: die with the parent; keep the map for every task; one numba thread."""
     global _WORKER_GRID
+    if parent_pid is not None:
+        bind_to_parent(parent_pid)
     _WORKER_GRID = grid
     import numba
 
@@ -421,26 +479,114 @@ def _pool_task(simulate_trial, scenario, task) -> _Done:
 
 def _run_pool(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
     context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(jobs, context, initializer=_init_worker, initargs=(grid,))
+    pool = ProcessPoolExecutor(
+        jobs, context, initializer=_init_worker, initargs=(grid, os.getpid())
+    )
+    finished = False
     try:
-        futures = [pool.submit(_pool_task, simulate_trial, scenario, task) for task in tasks]
+        with sigint_deferred():  # workers are started by the submits
+            futures = [pool.submit(_pool_task, simulate_trial, scenario, task) for task in tasks]
         for future in as_completed(futures):
-            yield future.result()
+            try:
+                yield future.result()
+            except BrokenProcessPool:
+                raise GeofixError(
+                    "a worker process died (killed, or out of memory); finished trials are "
+                    "stored: run the same command to resume"
+                ) from None
+        finished = True
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+        if finished:
+            pool.shutdown(wait=True)
+        else:
+            stop_workers(pool)
 
 
 def _run_dask(scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
+    """Connect now (a bad address fails before the progress bar), then run lazily."""
+    client = _dask_client(scheduler)
+    return _dask_results(client, scheduler, simulate_trial, scenario, grid, tasks)
+
+
+def _dask_results(client, scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
     import distributed
 
-    with distributed.Client(scheduler) as client:
-        shared = client.scatter(grid, broadcast=True)
-        futures = [
-            client.submit(run_task, simulate_trial, scenario, shared, task, pure=False)
-            for task in tasks
-        ]
+    with _quiet_dask_logs(), client:
         try:
-            for future in distributed.as_completed(futures):
-                yield future.result()
-        finally:
-            client.cancel(futures)
+            shared = client.scatter(grid, broadcast=True)
+            futures = [
+                client.submit(run_task, simulate_trial, scenario, shared, task, pure=False)
+                for task in tasks
+            ]
+            try:
+                for future in distributed.as_completed(futures):
+                    yield future.result()
+            finally:
+                with contextlib.suppress(Exception):
+                    client.cancel(futures)
+        except _dask_lost_errors() as exc:
+            raise GeofixError(
+                f"Dask scheduler {_label(scheduler)} lost the campaign's workers "
+                f"({type(exc).__name__}); finished trials are stored: rerun to resume"
+            ) from None
+
+
+#: Seconds to wait for a Dask scheduler (environment ``GEOFIX_DASK_TIMEOUT`` overrides).
+DASK_CONNECT_TIMEOUT_S = 10.0
+
+
+def _label(scheduler) -> str:
+    return repr(scheduler) if isinstance(scheduler, str) else type(scheduler).__name__
+
+
+@contextlib.contextmanager
+def _quiet_dask_logs():
+    """Silence Dask's own log records (reconnect tracebacks) while a campaign runs on it.
+
+    A lost cluster is reported once, as a :class:`GeofixError`, by :func:`_dask_results`.
+    """
+    import logging
+
+    names = [n for n in list(logging.root.manager.loggerDict) if n.startswith("distributed")]
+    loggers = [logging.getLogger(n) for n in ["distributed", *names]]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
+
+
+def _dask_client(scheduler):
+    """A ``distributed.Client``; GeofixError in one line when it cannot connect."""
+    import distributed
+
+    try:
+        timeout = float(os.environ.get("GEOFIX_DASK_TIMEOUT", DASK_CONNECT_TIMEOUT_S))
+    except ValueError:
+        timeout = DASK_CONNECT_TIMEOUT_S
+    try:
+        return distributed.Client(scheduler, timeout=timeout)
+    except (OSError, ValueError, TypeError, TimeoutError) as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise GeofixError(f"cannot use Dask scheduler {_label(scheduler)}: {first}") from None
+
+
+def _dask_lost_errors() -> tuple[type[BaseException], ...]:
+    """Exceptions that mean the Dask cluster went away (not a trial's own error)."""
+    import asyncio
+    import concurrent.futures
+
+    import distributed
+
+    errors: list = [asyncio.CancelledError, concurrent.futures.CancelledError, OSError]
+    errors += [getattr(distributed, n, None) for n in ("KilledWorker", "TimeoutError")]
+    for module, name in (
+        ("distributed.client", "FutureCancelledError"),
+        ("distributed.comm.core", "CommClosedError"),
+        ("distributed.scheduler", "KilledWorker"),
+    ):
+        errors.append(getattr(importlib.import_module(module), name, None))
+    return tuple(e for e in errors if isinstance(e, type))

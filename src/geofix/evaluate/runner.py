@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geofix.errors import GeofixError
+from geofix.errors import GeofixError, MemoryBudgetError
 from geofix.maps.grid import Grid
 from geofix.problem import Fix, MatchProblem
 from geofix.sim.trial import Trial
@@ -123,6 +123,8 @@ def run_trial(method, trial: Trial, grid: Grid, rng: np.random.Generator) -> Tri
     log = _CallLog(np.full((trial.n, 2), np.nan))
     try:
         runner(method, trial, grid, rng, log)
+    except MemoryBudgetError:
+        raise  # a refused size is the user's input, not the method failing on this trial
     except GeofixError as exc:
         log.message = str(exc) or type(exc).__name__
     return _result(trial, log)

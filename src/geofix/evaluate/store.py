@@ -65,6 +65,7 @@ SCALAR_COLUMNS = (
     "message",
 )
 _ARRAY_COLUMNS = ("covariance", "estimate", "error")
+_COLUMNS = SCALAR_COLUMNS + _ARRAY_COLUMNS
 
 
 def scenario_hash(scenario: Scenario) -> str:
@@ -80,8 +81,9 @@ def scenario_hash(scenario: Scenario) -> str:
     Returns
     -------
     str
-        Hex SHA-256 of the canonical JSON of the scenario plus the map file's name and
-        size in bytes.
+        Hex SHA-256 of the canonical JSON of the scenario plus the SHA-256 of the map
+        file's content (:func:`file_digest`): a map replaced by other values of the same
+        size gives another hash, so stale results are never returned.
 
     Raises
     ------
@@ -90,13 +92,34 @@ def scenario_hash(scenario: Scenario) -> str:
     """
     data = scenario.model_dump(mode="json", exclude={"base_dir", "trials"})
     path = _map_file(scenario)
-    try:
-        size = path.stat().st_size
-    except OSError:
-        raise MapError(f"map file not found: {path}") from None
-    data["_map_file"] = {"name": path.name, "size": size}
+    data["_map_file"] = {"name": path.name, "sha256": file_digest(path)}
     text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+_DIGESTS: dict[tuple[str, int, int], str] = {}
+
+
+def file_digest(path: str | Path) -> str:
+    """SHA-256 of a file's content, cached by (resolved path, mtime, size) in this process.
+
+    Raises
+    ------
+    MapError
+        If the file does not exist or cannot be read.
+    """
+    path = Path(path)
+    try:
+        stat = path.stat()
+        key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+        if key not in _DIGESTS:
+            with open(path, "rb") as f:
+                _DIGESTS[key] = hashlib.file_digest(f, "sha256").hexdigest()
+    except FileNotFoundError:
+        raise MapError(f"map file not found: {path}") from None
+    except OSError as exc:
+        raise MapError(f"cannot read map file {path}: {exc.strerror or exc}") from None
+    return _DIGESTS[key]
 
 
 def _map_file(scenario: Scenario) -> Path:
@@ -123,8 +146,15 @@ class ResultStore:
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.execute(_SCHEMA)
             self._db.commit()
+            columns = [row[1] for row in self._db.execute("PRAGMA table_info(trials)")]
         except (OSError, sqlite3.Error) as exc:
             raise GeofixError(f"cannot open results store {self.path}: {exc}") from None
+        if columns != list(_COLUMNS):
+            self._db.close()
+            raise GeofixError(
+                f"{self.path} is not a geofix results store (its 'trials' table has columns "
+                f"{', '.join(columns)}); choose another --out"
+            )
 
     def close(self) -> None:
         """Close the database connection."""

@@ -22,10 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from geofix.errors import ConfigError
+from geofix.errors import ConfigError, MapError
 from geofix.maps.grid import Grid
 from geofix.maps.terrain import local_std
 from geofix.measurement import gradient_grids, inverse_trace
+from geofix.memory import cells_bytes, check_allocation
 
 #: Track headings of the standard track, degrees clockwise from north.
 DEFAULT_HEADINGS_DEG = (0.0, 45.0, 90.0, 135.0)
@@ -158,6 +159,53 @@ def track_crlb_traces(
     return out
 
 
+#: Float arrays of the map's size alive at once: gradients, their three products, the
+#: shifted sums and the 2x2 information per cell, traces per heading, the layers.
+_MAP_COPIES = 24
+
+
+def check_suitability_size(grid: Grid, window_cells: int, headings: int) -> None:
+    """Refuse a window larger than the map, or layers that would not fit in memory.
+
+    Raises
+    ------
+    ConfigError
+        ``window_cells`` larger than the map's larger side.
+    MemoryBudgetError
+        The layers' estimate (map cells times the arrays alive at once, plus the padded
+        copy of ``window_cells`` around the map) against the budget.
+    """
+    ny, nx = grid.shape
+    if window_cells > max(ny, nx):
+        raise ConfigError(
+            f"suitability: --window-cells {window_cells} is larger than the map "
+            f"{grid.name!r} ({nx} x {ny} cells)"
+        )
+    pad = window_cells // 2 + 1
+    estimate = cells_bytes(ny, nx, copies=_MAP_COPIES + headings) + cells_bytes(
+        ny + 2 * pad, nx + 2 * pad, copies=2
+    )
+    check_allocation(
+        estimate, f"suitability of map {grid.name!r} ({nx} x {ny} cells, window {window_cells})"
+    )
+
+
+def require_relief(result: Suitability) -> None:
+    """Refuse a map on which no cell allows a fix (flat everywhere within the window).
+
+    Raises
+    ------
+    MapError
+        Every cell's CRLB is infinite or no-data.
+    """
+    if not np.isfinite(result.crlb.values).any():
+        raise MapError(
+            f"map {result.crlb.name.removesuffix('_crlb')!r} is flat within every "
+            f"{result.window_cells}-cell window: no position fix is possible anywhere "
+            "(the CRLB is infinite on every cell)"
+        )
+
+
 def suitability(
     grid: Grid,
     window_cells: int = 21,
@@ -190,8 +238,9 @@ def suitability(
     """
     if int(window_cells) < 3:
         raise ConfigError(f"suitability: window_cells must be at least 3, got {window_cells}")
-    if not noise_std > 0:
-        raise ConfigError(f"suitability: noise_std must be positive, got {noise_std}")
+    if not noise_std > 0 or not np.isfinite(noise_std):
+        raise ConfigError(f"suitability: noise_std must be positive and finite, got {noise_std}")
+    check_suitability_size(grid, int(window_cells), len(headings_deg))
     valid = np.isfinite(grid.values)
     traces = track_crlb_traces(grid, int(window_cells), noise_std, headings_deg)
     with np.errstate(invalid="ignore"):

@@ -20,6 +20,7 @@ from geofix.errors import MapError
 from geofix.maps import project
 from geofix.maps.bundled import BUILTIN_PREFIX, BUNDLED_MAPS, builtin_name, builtin_path
 from geofix.maps.grid import KINDS, Grid
+from geofix.memory import cells_bytes, check_allocation
 
 NETCDF_SUFFIXES = (".nc", ".nc4", ".cdf", ".grd", ".netcdf")
 GEOTIFF_SUFFIXES = (".tif", ".tiff", ".gtiff")
@@ -103,6 +104,8 @@ def load_grid(
         raise MapError(f"map kind must be one of {KINDS}, got {kind!r}")
     source, file_path, default_kind = _resolve(path)
     raw = _read(file_path, variable, source)
+    if raw.saved is None:  # geofix's own grids may hold inf (e.g. a CRLB layer)
+        _require_finite(raw.values, source)
     raw = _crop(raw, region, source)
     if raw.saved is not None:
         return _finish_saved(raw, region, resample_m, kind, name)
@@ -173,8 +176,44 @@ def _resolve(path) -> tuple[str, Path, str | None]:
     return str(file_path), file_path, None
 
 
+_SIGNATURES = {
+    b"CDF\x01": "netCDF",
+    b"CDF\x02": "netCDF",
+    b"CDF\x05": "netCDF",
+    b"\x89HDF\r\n\x1a\n": "HDF5",
+    b"II*\x00": "TIFF",
+    b"MM\x00*": "TIFF",
+    b"II+\x00": "TIFF",
+    b"MM\x00+": "TIFF",
+}
+
+
+def _sniff(path: Path, source: str) -> str:
+    """The container a file's first bytes announce: ``netCDF``, ``HDF5`` or ``TIFF``.
+
+    Raises
+    ------
+    MapError
+        The file is empty or is none of them (``not a netCDF / GeoTIFF / BAG file``).
+    """
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+            f.seek(512)
+            at512 = f.read(8)  # HDF5 may start its superblock at 512, 1024, ...
+    except OSError as exc:
+        raise MapError(f"cannot read map file {source}: {exc.strerror or exc}") from None
+    if not head:
+        raise MapError(f"map file {source} is empty (0 bytes)")
+    for magic, kind in _SIGNATURES.items():
+        if head.startswith(magic) or at512.startswith(magic):
+            return kind
+    raise MapError(f"not a netCDF / GeoTIFF / BAG file: {source} (starts with {head[:4]!r})")
+
+
 def _read(path: Path, variable: str | None, source: str) -> _Raw:
     """Dispatch on the file suffix (unknown suffixes try netCDF, then GeoTIFF)."""
+    _sniff(path, source)
     suffix = path.suffix.lower()
     if suffix in BAG_SUFFIXES:
         return _read_bag(path, source)
@@ -208,15 +247,16 @@ def _read_netcdf(path: Path, variable: str | None, source: str) -> _Raw:
         if int(ds.attrs.get("geofix_grid", 0)) == 1:
             return _saved_raw(ds)
         var = _pick_variable(ds, variable, source)
-        da = _as_yx(ds[var].squeeze(drop=True), source)
+        da = _as_yx(ds[var], source)
         xname, yname = da.dims[1], da.dims[0]
         for dim in (xname, yname):
             if dim not in da.coords:
                 raise MapError(f"{source}: variable {var!r} has no coordinate for {dim!r}")
-        x, y = da[xname].values.astype(float), da[yname].values.astype(float)
+        x = _numbers(da[xname], f"coordinate {xname!r}", source)
+        y = _numbers(da[yname], f"coordinate {yname!r}", source)
         xa, ya = dict(da[xname].attrs), dict(da[yname].attrs)
         attrs = dict(da.attrs)
-        values = da.values.astype(float)
+        values = _numbers(da, f"variable {var!r}", source)
     geographic = _is_geographic(str(xname), str(yname), xa, ya, x, y)
     values, x, y = _ascending(values, x, y, source)
     text = " ".join([var, str(attrs.get("long_name", "")), str(attrs.get("standard_name", ""))])
@@ -238,19 +278,43 @@ def _pick_variable(ds, variable: str | None, source: str) -> str:
         return grids[0]
     if "z" in grids:
         return "z"
+    shapes = ", ".join(f"{v} {_shape(ds[v])}" for v in names) or "none"
+    if not grids:
+        raise MapError(
+            f"{source}: no 2-D variable of at least 2 x 2 cells to read as a map "
+            f"(variables: {shapes})"
+        )
     raise MapError(
-        f"{source}: cannot choose a 2-D variable among [{', '.join(grids)}]; pass variable="
+        f"{source}: several 2-D variables ({', '.join(grids)}); choose one with "
+        "map.variable / --variable"
     )
 
 
+def _shape(da) -> str:
+    return "(" + " x ".join(f"{d}={n}" for d, n in da.sizes.items()) + ")"
+
+
 def _as_yx(da, source: str):
-    """The DataArray with dims ordered ``(y, x)`` (transposed if it comes as x, y)."""
+    """The DataArray squeezed to dims ``(y, x)`` (transposed if it comes as x, y)."""
+    full = _shape(da)
+    da = da.squeeze(drop=True)
     if da.ndim != 2:
-        raise MapError(f"{source}: variable {da.name!r} is not 2-D (dims {da.dims})")
+        raise MapError(
+            f"{source}: variable {da.name!r} {full} is not a 2-D grid of at least 2 x 2 "
+            "cells (extra dimensions must have length 1)"
+        )
     first, second = (str(d).lower() for d in da.dims)
     if first in _X_NAMES and second in _Y_NAMES:
         return da.transpose()
     return da
+
+
+def _numbers(da, what: str, source: str) -> np.ndarray:
+    """The values of a DataArray as float64, refusing text and oversized variables."""
+    if da.dtype.kind not in "biuf":
+        raise MapError(f"{source}: {what} holds {da.dtype} values, not numbers")
+    check_allocation(cells_bytes(da.size, copies=3), f"{source}: reading {what} {_shape(da)}")
+    return np.asarray(da.values, dtype=float)
 
 
 def _is_geographic(xname: str, yname: str, xattrs: dict, yattrs: dict, x, y) -> bool:
@@ -397,6 +461,17 @@ def _detect_kind(text: str, default_kind: str | None) -> str:
     if any(word in lowered for word in _GRAVITY_WORDS):
         return "gravity"
     return default_kind or "depth"
+
+
+def _require_finite(values: np.ndarray, source: str) -> None:
+    """Refuse ``+inf`` / ``-inf`` cells: no-data must be NaN (or the file's fill value)."""
+    bad = np.isinf(values)
+    if bad.any():
+        row, col = np.unravel_index(int(np.argmax(bad)), values.shape)
+        raise MapError(
+            f"{source}: {int(bad.sum())} cells are infinite (first at row {row}, column "
+            f"{col}); mark no-data as NaN or with _FillValue"
+        )
 
 
 def _require_data(values: np.ndarray, source: str) -> None:

@@ -15,6 +15,12 @@ import numpy as np
 
 from geofix.errors import MapError
 from geofix.maps.grid import Grid, _bilinear
+from geofix.memory import cells_bytes, check_allocation
+
+# Float arrays of the output's size alive at once: node lon/lat, fractional indices,
+# bilinear weights and the result (projection); indices, weights, result (resampling).
+_PROJECT_COPIES = 18
+_RESAMPLE_COPIES = 14
 
 # Relative slack (in cells) that keeps nodes on the very edge of the source inside it
 # despite round-off in the projection.
@@ -152,6 +158,11 @@ def project_lonlat_grid(
         raise MapError(f"cell size must be positive, got {cell_m}")
     p = Proj(proj)
     xmin, xmax, ymin, ymax = _footprint(lon, lat, p)
+    nx, ny = (xmax - xmin) / cell_m + 1, (ymax - ymin) / cell_m + 1
+    check_allocation(
+        cells_bytes(nx, ny, copies=_PROJECT_COPIES),
+        f"map projected at {cell_m:g} m cells ({nx:.0f} x {ny:.0f})",
+    )
     x = _axis_nodes(xmin, xmax, cell_m)
     y = _axis_nodes(ymin, ymax, cell_m)
     node_lon, node_lat = p(*np.meshgrid(x, y), inverse=True)
@@ -182,6 +193,11 @@ def resample_m(grid: Grid, cell_m: float) -> Grid:
     if not cell_m > 0:
         raise MapError(f"map {grid.name!r}: resampling cell size must be positive, got {cell_m}")
     ny, nx = grid.shape
+    fx, fy = (nx - 1) * grid.dx / cell_m + 1, (ny - 1) * grid.dy / cell_m + 1
+    check_allocation(
+        cells_bytes(fx, fy, copies=_RESAMPLE_COPIES),
+        f"map {grid.name!r} at resample_m {cell_m:g} ({fx:.0f} x {fy:.0f} cells)",
+    )
     new_nx = int(np.floor((nx - 1) * grid.dx / cell_m + 1e-9)) + 1
     new_ny = int(np.floor((ny - 1) * grid.dy / cell_m + 1e-9)) + 1
     if new_nx < 2 or new_ny < 2:

@@ -152,6 +152,8 @@ class Icp:
 
     name: ClassVar[str] = "icp"
     recursive: ClassVar[bool] = False
+    #: A point cloud needs a swath: one sounding per sample leaves the rotation unobservable.
+    min_beams: ClassVar[int] = 2
 
     window_sigma: float = 3.0
     depth_weight: float = 0.0

@@ -33,9 +33,13 @@ import numpy as np
 
 from geofix.errors import ConfigError, MatchError
 from geofix.match.integrity import terrain_snr
+from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import Fix, MatchProblem
 
 _METRICS = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3}
+# Float arrays of the cost surface's size alive at once: two surfaces (cor/ncor score
+# again with msd), the pseudo-likelihood, offset grids, distances and products.
+_SURFACE_COPIES = 12
 
 
 @dataclass(frozen=True)
@@ -140,6 +144,17 @@ class Tercom:
             self.window_m
             if self.window_m > 0
             else self.window_sigma * float(np.max(problem.sigma_position))
+        )
+        fx = 2 * np.floor(half / (self.step_cells * grid.dx)) + 1
+        fy = 2 * np.floor(half / (self.step_cells * grid.dy)) + 1
+        check_allocation(
+            cells_bytes(fx, fy, copies=_SURFACE_COPIES),
+            f"tercom search window of {fx:.0g} x {fy:.0g} candidates (half-side {half:.3g} m: "
+            + (
+                f"window_m {self.window_m:g})"
+                if self.window_m > 0
+                else f"window_sigma {self.window_sigma:g} x the INS prior sigma from ins.*)"
+            ),
         )
         nx = int(np.floor(half / (self.step_cells * grid.dx)))
         ny = int(np.floor(half / (self.step_cells * grid.dy)))

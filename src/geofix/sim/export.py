@@ -29,6 +29,7 @@ import numpy as np
 
 from geofix.errors import ConfigError, GeofixError
 from geofix.maps.grid import Grid
+from geofix.sim.scenario import with_overrides
 from geofix.sim.trial import Trial
 
 _RAD = "radians clockwise from north"
@@ -69,14 +70,13 @@ def export_trials(scenario, path: str | Path, trials: int | None = None, seed=No
     """
     from geofix.sim.simulate import prepare_map, simulate_trial
 
-    if trials is not None and int(trials) < 1:
-        raise ConfigError(f"trials must be at least 1, got {trials}")
-    update = {k: int(v) for k, v in (("trials", trials), ("seed", seed)) if v is not None}
-    scenario = scenario.model_copy(update=update) if update else scenario
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"--out {path} is a folder; give the netCDF file to write")
+    scenario = with_overrides(scenario, trials, seed)
     grid = prepare_map(scenario)
     runs = [simulate_trial(scenario, grid, i) for i in range(scenario.trials)]
     dataset = trials_dataset(grid, runs, _scenario_attrs(scenario))
-    path = Path(path)
     try:
         dataset.to_netcdf(path)
     except (OSError, ValueError) as exc:

@@ -90,7 +90,7 @@ class Scenario(Strict):
     ins: InsSpec = InsSpec()
     dvl: DvlSpec | None = None
     trials: int = Field(default=10, ge=1)
-    seed: int = 0
+    seed: int = Field(default=0, ge=0)
     base_dir: str = Field(default=".", exclude=True)
 
     @field_validator("name")
@@ -118,6 +118,26 @@ def scenario_from_dict(
         return Scenario(**data, base_dir=str(base_dir))
     except ValidationError as exc:
         raise ConfigError(f"{source}: {_describe(exc)}") from None
+
+
+def with_overrides(scenario: Scenario, trials: int | None = None, seed: int | None = None):
+    """The scenario with ``trials`` and/or ``seed`` replaced (the CLI's ``--trials``/``--seed``).
+
+    Raises
+    ------
+    ConfigError
+        ``trials`` below 1 or ``seed`` negative (the message names the option).
+    """
+    update = {}
+    if trials is not None:
+        if int(trials) < 1:
+            raise ConfigError(f"trials (--trials) must be at least 1, got {trials}")
+        update["trials"] = int(trials)
+    if seed is not None:
+        if int(seed) < 0:
+            raise ConfigError(f"seed (--seed) must be a non-negative integer, got {seed}")
+        update["seed"] = int(seed)
+    return scenario.model_copy(update=update) if update else scenario
 
 
 def builtin_scenario_path(name: str) -> Path:
@@ -168,8 +188,18 @@ def load_scenario(path: str | Path) -> Scenario:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ConfigError(f"scenario {path} is not valid YAML: {exc}") from None
+        raise ConfigError(f"scenario {path}{_yaml_problem(exc)}") from None
     return scenario_from_dict(data, base_dir=path.parent, source=str(path))
+
+
+def _yaml_problem(exc: yaml.YAMLError) -> str:
+    """``":LINE:COLUMN: not valid YAML: what"`` (1-based) from a YAML parser error."""
+    mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+    where = "" if mark is None else f":{mark.line + 1}:{mark.column + 1}"
+    what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    context = getattr(exc, "context", None)
+    what = f"{context}, {what}" if context else what
+    return f"{where}: not valid YAML: {' '.join(str(what).split())}"
 
 
 def _describe(exc: ValidationError) -> str:
@@ -177,5 +207,7 @@ def _describe(exc: ValidationError) -> str:
     for err in exc.errors():
         loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
         msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
-        parts.append(f"{loc}: {msg}")
+        if err["type"] == "finite_number":
+            msg = f"must be a finite number, got {err.get('input')!r}"
+        parts.append(f"{loc}: {' '.join(str(msg).split())}")
     return "; ".join(parts)

@@ -15,6 +15,7 @@ import numpy as np
 
 from geofix.errors import ConfigError, TrackOffMapError
 from geofix.maps.grid import Grid
+from geofix.memory import cells_bytes, check_allocation
 from geofix.nav.dvl import simulate_dvl
 from geofix.nav.ins import position_sigma, simulate_ins
 from geofix.nav.trajectory import TrueTrajectory, true_trajectory
@@ -109,9 +110,56 @@ def check_track_on_map(grid: Grid, positions, what: str = "track") -> None:
     where = f" beam {beam}" if flat.shape[1] > 1 else ""
     raise TrackOffMapError(
         f"{what} leaves the map (or no-data) at sample {k} of {pos.shape[0]}{where}, "
-        f"({x:.1f}, {y:.1f}) m; map covers x {west:.1f}..{east:.1f}, "
+        f"({_metres(x)}, {_metres(y)}) m; map covers x {west:.1f}..{east:.1f}, "
         f"y {south:.1f}..{north:.1f} m"
     )
+
+
+def _metres(value: float) -> str:
+    """A coordinate for a message: ``1234.5``, or ``1.2e+300`` when far too large."""
+    return f"{value:.1f}" if abs(value) < 1e9 else f"{value:.3g}"
+
+
+#: Float arrays of ``samples x beams`` a trial holds at once while it is simulated
+#: (footprints, readings, noise, measured, unlagged, offsets into the map).
+_TRIAL_COPIES = 12
+
+
+def check_trial_size(scenario: Scenario) -> None:
+    """Refuse a mission whose per-sample arrays would not fit the memory budget.
+
+    Raises
+    ------
+    MemoryBudgetError
+        ``track.samples * track.legs`` samples times ``sensor.beams`` beams, with the
+        estimate and the budget.
+    """
+    n = float(scenario.track.samples) * float(scenario.track.legs)
+    beams = scenario.sensor.beams if scenario.sensor.type == "multibeam" else 1
+    check_allocation(
+        cells_bytes(n, beams, copies=_TRIAL_COPIES) + cells_bytes(n, copies=40),
+        f"trial of {n:.0f} samples x {beams} beams (track.samples, track.legs, sensor.beams)",
+    )
+
+
+def check_sensor_fits_map(scenario: Scenario, grid: Grid) -> None:
+    """Refuse a sensor that cannot read the map's field (a gravimeter on a depth map).
+
+    The map's kind is detected from its variable name and units, or set by ``map.kind``;
+    a map mislabelled by the detection is accepted once ``map.kind`` says what it holds.
+
+    Raises
+    ------
+    ConfigError
+        A gravimeter on a depth map, or an echosounder on a gravity map.
+    """
+    sensor = scenario.sensor.type
+    needs = "gravity" if sensor == "gravimeter" else "depth"
+    if grid.kind != needs:
+        raise ConfigError(
+            f"sensor.type {sensor} needs a {needs} map, but map {grid.name!r} is a "
+            f"{grid.kind} map; set map.kind: {needs} if the file holds {needs}"
+        )
 
 
 def _true_track(scenario: Scenario, grid: Grid, rng: np.random.Generator) -> TrueTrajectory:
@@ -184,6 +232,8 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
     >>> bool((trial.indicated != trial.truth).any())  # the INS has drifted
     True
     """
+    check_trial_size(scenario)
+    check_sensor_fits_map(scenario, grid)
     track_rng, ins_rng, dvl_rng, sensor_rng = np.random.default_rng([scenario.seed, index]).spawn(4)
     true = _true_track(scenario, grid, track_rng)
     offsets = sensor_offsets(scenario.sensor)
