@@ -26,10 +26,13 @@ from geofix.match.iccp import Iccp, MultipathIccp
 from geofix.match.icp import Icp, TercomIcp
 from geofix.match.ioap import Ioap
 from geofix.match.tercom import Tercom
+from geofix.problem import Matcher
+
+_M = typing.TypeVar("_M", bound=type[Matcher])
 
 #: The methods geofix ships: batch matchers first, then the recursive filters, then the
 #: free INS (no matching) as the yardstick.
-BUILTIN_METHODS: tuple[type, ...] = (
+BUILTIN_METHODS: tuple[type[Matcher], ...] = (
     Tercom,
     Iccp,
     MultipathIccp,
@@ -45,10 +48,10 @@ BUILTIN_METHODS: tuple[type, ...] = (
     FreeIns,
 )
 
-_REGISTRY: dict[str, type] = {cls.name: cls for cls in BUILTIN_METHODS}
+_REGISTRY: dict[str, type[Matcher]] = {cls.name: cls for cls in BUILTIN_METHODS}
 
 
-def register(cls: type) -> type:
+def register(cls: _M) -> _M:
     """Class decorator: register a method dataclass of one's own under ``cls.name``.
 
     The class needs a ``name``, a ``recursive`` flag and ``match(problem, rng) -> Fix``
@@ -65,7 +68,7 @@ def register(cls: type) -> type:
     return cls
 
 
-def available_methods() -> dict[str, type]:
+def available_methods() -> dict[str, type[Matcher]]:
     """All registered methods, by name.
 
     Examples
@@ -84,11 +87,23 @@ def method_settings(cls: type) -> list[tuple[str, object, str]]:
     for f in dataclasses.fields(cls):
         if not f.init or f.name.startswith("_"):
             continue
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
         rows.append(
-            (f.name, default, getattr(hints.get(f.name), "__name__", str(hints.get(f.name))))
+            (
+                f.name,
+                _field_default(f),
+                getattr(hints.get(f.name), "__name__", str(hints.get(f.name))),
+            )
         )
     return rows
+
+
+def _field_default(f: dataclasses.Field[typing.Any]) -> object:
+    """A setting's default value (``default_factory()`` when it has a factory)."""
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is dataclasses.MISSING:
+        raise TypeError(f"setting {f.name!r} has no default")
+    return f.default_factory()
 
 
 def method_summary(cls: type) -> str:

@@ -10,7 +10,7 @@ from geofix.maps.grid import Grid
 DEFAULT_UNITS = {"depth": "m", "gravity": "mGal"}
 
 
-def _power_law_noise(shape: tuple[int, int], hurst: float, rng: np.random.Generator):
+def _power_law_noise(shape: tuple[int, int], hurst: float, rng: np.random.Generator) -> np.ndarray:
     """Zero-mean field with amplitude spectrum ``|k|^-(hurst + 1)`` (2-D fBm surface).
 
     Synthesised on a canvas twice the size and cropped, so that the result is not
@@ -73,7 +73,8 @@ def fractal_terrain(
         raise ConfigError(f"hurst must be in (0, 1), got {hurst}")
     if not std >= 0:
         raise ConfigError(f"std must be non-negative, got {std}")
-    field = _power_law_noise(tuple(int(n) for n in shape), hurst, rng)
+    ny, nx = shape
+    field = _power_law_noise((int(ny), int(nx)), hurst, rng)
     field = (field - field.mean()) / field.std()
     values = mean + std * field
     meta = {"source": "fractal_terrain", "hurst": hurst, "std": std, "mean": mean}

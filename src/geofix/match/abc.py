@@ -300,7 +300,14 @@ class Colonies:
     trials: np.ndarray | None = None
     evaluations: int = 0
 
-    def run(self, cfg: AbcMhd, misfit, displacement, tolerance, rng) -> None:
+    def run(
+        self,
+        cfg: AbcMhd,
+        misfit: PairMisfit,
+        displacement: np.ndarray | None,
+        tolerance: float,
+        rng: np.random.Generator,
+    ) -> None:
         """Initialise, then employed, onlooker and scout phases for ``cfg.cycles``."""
         sn = cfg.food_sources
         limit = cfg.limit or sn * 4
@@ -313,7 +320,13 @@ class Colonies:
             self._scouts(limit, misfit, displacement, tolerance, rng)
         self.evaluations = misfit.calls * 2 * max(misfit.offsets.shape[0], 1)
 
-    def _random_sources(self, count, displacement, tolerance, rng) -> np.ndarray:
+    def _random_sources(
+        self,
+        count: int,
+        displacement: np.ndarray | None,
+        tolerance: float,
+        rng: np.random.Generator,
+    ) -> np.ndarray:
         """Uniform ``a`` in its box; ``b = a + displacement`` within the tolerance."""
         k = self.centre.shape[0]
         u = rng.uniform(-1.0, 1.0, (k, count, 4))
@@ -325,8 +338,9 @@ class Colonies:
             sources[..., 2:] = sources[..., :2] + displacement[:, None, :] + jitter * 0.999
         return sources
 
-    def _neighbour_step(self, index, rng) -> np.ndarray:
+    def _neighbour_step(self, index: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """New sources around ``sources[k, index]``: one axis, both points, same ``phi``."""
+        assert self.sources is not None
         k, sn = index.shape
         rows = np.arange(self.sources.shape[0])[:, None]
         partner = (index + rng.integers(1, self.sources.shape[1], (k, sn))) % self.sources.shape[1]
@@ -342,14 +356,27 @@ class Colonies:
         low = self.centre[:, None, :] - self.half[:, None, :]
         return np.clip(new, low, self.centre[:, None, :] + self.half[:, None, :])
 
-    def _evaluate(self, new, misfit, displacement, tolerance) -> np.ndarray:
+    def _evaluate(
+        self,
+        new: np.ndarray,
+        misfit: PairMisfit,
+        displacement: np.ndarray | None,
+        tolerance: float,
+    ) -> np.ndarray:
         f = misfit(new)
         if displacement is not None:
             ok = satisfies_displacement(new, displacement[:, None, :], tolerance)
             f = np.where(ok, f, np.inf)
         return f
 
-    def _employed(self, misfit, displacement, tolerance, rng) -> None:
+    def _employed(
+        self,
+        misfit: PairMisfit,
+        displacement: np.ndarray | None,
+        tolerance: float,
+        rng: np.random.Generator,
+    ) -> None:
+        assert self.sources is not None and self.misfit is not None and self.trials is not None
         index = np.broadcast_to(np.arange(self.sources.shape[1]), self.misfit.shape)
         new = self._neighbour_step(index, rng)
         f = self._evaluate(new, misfit, displacement, tolerance)
@@ -358,7 +385,14 @@ class Colonies:
         self.misfit = np.where(better, f, self.misfit)
         self.trials = np.where(better, 0, self.trials + 1)
 
-    def _onlookers(self, misfit, displacement, tolerance, rng) -> None:
+    def _onlookers(
+        self,
+        misfit: PairMisfit,
+        displacement: np.ndarray | None,
+        tolerance: float,
+        rng: np.random.Generator,
+    ) -> None:
+        assert self.sources is not None and self.misfit is not None and self.trials is not None
         fit = 1.0 / (1.0 + self.misfit)  # 0 for an infinite misfit
         total = fit.sum(axis=1, keepdims=True)
         prob = np.where(total > 0, fit / np.where(total > 0, total, 1.0), 1.0 / fit.shape[1])
@@ -379,7 +413,15 @@ class Colonies:
         self.misfit[rows[wins], index[wins]] = f[wins]
         self.trials = np.where(improved, 0, self.trials + failed)
 
-    def _scouts(self, limit, misfit, displacement, tolerance, rng) -> None:
+    def _scouts(
+        self,
+        limit: int,
+        misfit: PairMisfit,
+        displacement: np.ndarray | None,
+        tolerance: float,
+        rng: np.random.Generator,
+    ) -> None:
+        assert self.sources is not None and self.misfit is not None and self.trials is not None
         worst = np.argmax(self.trials, axis=1)
         rows = np.arange(self.trials.shape[0])
         abandon = self.trials[rows, worst] > limit
@@ -395,17 +437,20 @@ class Colonies:
     # ------------------------------------------------------------------ results
     def gate(self, threshold: float) -> None:
         """Keep as candidate results the sources with ``misfit <= threshold`` (or the best)."""
+        assert self.misfit is not None
         best = self.misfit.min(axis=1, keepdims=True)
         keep = np.isfinite(self.misfit) & (self.misfit <= np.maximum(threshold, best))
         self.misfit = np.where(keep, self.misfit, np.inf)
 
     def candidate_count(self) -> np.ndarray:
         """Number of candidate results of every pair."""
+        assert self.misfit is not None
         return np.isfinite(self.misfit).sum(axis=1)
 
     @staticmethod
     def merge(a: Colonies, b: Colonies) -> Colonies:
         """Two colony sets (pairs disjoint) as one, ordered by pair."""
+        assert a.sources is not None and b.sources is not None
         sn = max(a.sources.shape[1], b.sources.shape[1])
         pairs = np.concatenate([a.pairs, b.pairs])
         order = np.argsort(pairs)
@@ -465,6 +510,7 @@ def screen_candidates(indicated: np.ndarray, colony: Colonies, half_window: int)
         The chosen pair for each of the ``K`` pairs (the best-misfit source when a pair
         has a single candidate), with its mean Hausdorff distance, metres.
     """
+    assert colony.sources is not None and colony.misfit is not None
     src, valid = colony.sources, np.isfinite(colony.misfit)
     k, s = valid.shape
     ref_pair = np.concatenate([indicated[colony.pairs], indicated[colony.pairs + 1]], 1)

@@ -131,6 +131,8 @@ def iccp_align(
 class _IccpBase:
     """Settings and the fix shared by both ICCP matchers."""
 
+    name: ClassVar[str]
+
     window_sigma: float = 3.0
     max_iterations: int = 100
     tolerance_cells: float = 0.01

@@ -353,13 +353,13 @@ def _source_cloud(problem: MatchProblem, start: np.ndarray) -> tuple[np.ndarray,
 
 def _target_cloud(grid: Grid, xy: np.ndarray, margin_m: float) -> np.ndarray:
     """``(k, 3)`` centres ``(x, y, z)`` of the valid cells within ``margin_m`` of ``xy``."""
-    (c0, r0), (c1, r1) = (
+    (low_col, low_row), (high_col, high_row) = (
         grid.xy_to_cell(*(xy.min(axis=0) - margin_m)),
         grid.xy_to_cell(*(xy.max(axis=0) + margin_m)),
     )
     ny, nx = grid.shape
-    c0, r0 = max(int(np.floor(c0)), 0), max(int(np.floor(r0)), 0)
-    c1, r1 = min(int(np.ceil(c1)) + 1, nx), min(int(np.ceil(r1)) + 1, ny)
+    c0, r0 = max(int(np.floor(low_col)), 0), max(int(np.floor(low_row)), 0)
+    c1, r1 = min(int(np.ceil(high_col)) + 1, nx), min(int(np.ceil(high_row)) + 1, ny)
     if c1 - c0 < 2 or r1 - r0 < 2:
         raise MatchError("icp: the map window around the track lies off the map")
     z = grid.values[r0:r1, c0:c1]

@@ -164,12 +164,12 @@ def _draw_cdf(ax, end_errors, cell_m, bound_m):
     ax.set_title("end-point error over the campaign")
 
 
-def _window(grid: Grid, x0, x1, y0, y1) -> Grid:
-    c0, r0 = grid.xy_to_cell(x0, y0)
-    c1, r1 = grid.xy_to_cell(x1, y1)
+def _window(grid: Grid, x0: float, x1: float, y0: float, y1: float) -> Grid:
+    low_col, low_row = grid.xy_to_cell(x0, y0)
+    high_col, high_row = grid.xy_to_cell(x1, y1)
     ny, nx = grid.shape
-    c0, r0 = max(int(np.floor(c0)), 0), max(int(np.floor(r0)), 0)
-    c1, r1 = min(int(np.ceil(c1)) + 1, nx), min(int(np.ceil(r1)) + 1, ny)
+    c0, r0 = max(int(np.floor(low_col)), 0), max(int(np.floor(low_row)), 0)
+    c1, r1 = min(int(np.ceil(high_col)) + 1, nx), min(int(np.ceil(high_row)) + 1, ny)
     return grid.crop_cells(c0, max(c1, c0 + 2), r0, max(r1, r0 + 2))
 
 

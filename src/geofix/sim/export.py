@@ -24,13 +24,18 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geofix.errors import ConfigError, GeofixError
 from geofix.maps.grid import Grid
 from geofix.sim.scenario import with_overrides
 from geofix.sim.trial import Trial
+
+# One dataset variable as xarray takes it: ``(dims, values, attributes)``.
+_Variable = tuple[str | tuple[str, ...], ArrayLike, dict[str, Any]]
 
 _RAD = "radians clockwise from north"
 _TRACKS = {
@@ -116,7 +121,9 @@ def trials_dataset(grid: Grid, trials: list[Trial], attrs: dict | None = None):
 
     _check_alike(trials)
     first = trials[0]
-    data = {"z": (("y", "x"), np.asarray(grid.values), {"units": grid.units, "long_name": "map"})}
+    data: dict[str, _Variable] = {
+        "z": (("y", "x"), np.asarray(grid.values), {"units": grid.units, "long_name": "map"})
+    }
     data.update(_trial_vars(trials))
     data.update(_extra_vars(trials))
     data["offset_across"] = ("beam", first.offsets[:, 0], _attrs("beam offset, starboard", "m"))
@@ -130,8 +137,8 @@ def _attrs(long_name: str, units: str) -> dict:
     return {"long_name": long_name, "units": units}
 
 
-def _trial_vars(trials: list[Trial]) -> dict:
-    out = {}
+def _trial_vars(trials: list[Trial]) -> dict[str, _Variable]:
+    out: dict[str, _Variable] = {}
     for name, (attr, what, units) in _TRACKS.items():
         stacked = np.stack([getattr(t, attr) for t in trials])
         out[f"{name}_x"] = (("trial", "sample"), stacked[..., 0], _attrs(f"{what}, east", units))
@@ -148,7 +155,7 @@ def _trial_vars(trials: list[Trial]) -> dict:
     return out
 
 
-def _beam_noise_std_vars(trials: list[Trial]) -> dict:
+def _beam_noise_std_vars(trials: list[Trial]) -> dict[str, _Variable]:
     """``beam_noise_std (trial, beam)``, NaN rows for trials without; none if no trial has it."""
     if all(t.beam_noise_std is None for t in trials):
         return {}
@@ -161,8 +168,8 @@ def _beam_noise_std_vars(trials: list[Trial]) -> dict:
     return {"beam_noise_std": (("trial", "beam"), np.stack(rows), what)}
 
 
-def _extra_vars(trials: list[Trial]) -> dict:
-    out = {}
+def _extra_vars(trials: list[Trial]) -> dict[str, _Variable]:
+    out: dict[str, _Variable] = {}
     first = trials[0]
     for key, value in first.extras.items():
         stacked = np.stack([np.asarray(t.extras[key], dtype=float) for t in trials])

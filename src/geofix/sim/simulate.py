@@ -76,6 +76,7 @@ def start_position(scenario: Scenario, grid: Grid) -> tuple[float, float]:
         )
     if track.start_m is not None:
         return float(track.start_m[0]), float(track.start_m[1])
+    assert track.start_cell is not None  # exactly one of the two is given (checked above)
     x, y = grid.cell_to_xy(track.start_cell[0], track.start_cell[1])
     return float(x), float(y)
 
