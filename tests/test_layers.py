@@ -13,7 +13,7 @@ PACKAGE = Path(geofix.__file__).parent
 #: Bottom up. A module may import its own layer's package and any layer below it; modules
 #: on one line are siblings that do not import each other.
 LAYERS = (
-    ("errors", "conventions", "_strict"),
+    ("errors", "conventions", "_strict", "_version"),
     ("maps",),
     ("nav", "sensors"),
     ("problem",),
@@ -22,7 +22,7 @@ LAYERS = (
     ("match", "filters"),
     ("methods",),
     ("evaluate",),
-    ("plot", "console"),
+    ("plot", "console", "report"),
     ("cli",),
     ("__main__",),
 )

@@ -5,11 +5,10 @@ depths, gravimeter anomalies) against a prior map to correct INS drift. See
 :mod:`geofix.conventions` for frames, angles and units.
 """
 
+from geofix._version import __version__
 from geofix.errors import ConfigError, GeofixError, MapError, MatchError, TrackOffMapError
 from geofix.maps.grid import Grid
 from geofix.problem import Fix, Matcher, MatchProblem
-
-__version__ = "0.1.0"
 
 __all__ = [
     "ConfigError",
