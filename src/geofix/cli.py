@@ -1,6 +1,7 @@
 """The ``geofix`` command line: thin -- parse, call the public API, print or write.
 
-Commands: ``demo``, ``run``, ``methods``, ``maps``, ``suitability``, ``export``.
+Commands: ``demo``, ``run``, ``methods``, ``maps``, ``suitability``, ``export``,
+``report``.
 ``geofix run`` is a contract relied on by outside scripts (flags and JSON keys are kept
 exactly; they may be extended).
 """
@@ -208,6 +209,23 @@ def export(
 
         path = export_trials(load_scenario(scenario), out, trials=trials, seed=seed)
         _out.print(f"trials: {path}")
+
+    _guarded(go)
+
+
+@app.command()
+def report(
+    out_dir: Annotated[Path, typer.Argument(help="Campaign folder written by geofix run --out.")],
+    out: Annotated[
+        Path | None, typer.Option(help="HTML file to write (default: OUT_DIR/report.html).")
+    ] = None,
+) -> None:
+    """Write one self-contained HTML page of a campaign: tables, bound, settings, figures."""
+
+    def go():
+        from geofix.report import write_report
+
+        _out.print(f"report: {write_report(out_dir, out)}")
 
     _guarded(go)
 
