@@ -1,6 +1,6 @@
 """ABC-MHD: gravity matching by an artificial bee colony, screened by mean Hausdorff distance.
 
-Source 003 (CN103487056A, ALGORITHMS.md section 6). Every pair of consecutive indicated
+Source 003 (Chinese patent CN103487056A). Every pair of consecutive indicated
 positions ``(p_k, p_k+1)`` gets its own colony; a food source is a candidate position pair
 ``(a, b)``, ``a`` near ``p_k`` and ``b`` near ``p_k+1`` (the "two swarms"). All colonies of a
 track run at once: every phase is one numpy step over an array ``(pairs, sources, 4)``.

@@ -1,7 +1,7 @@
 """ICCP and multipath parallel ICCP: iterative closest contour point matching.
 
-ALGORITHMS.md section 2. Every measured value ``h_j`` says the true footprint lies on the
-map's ``h_j`` contour. Starting from the indicated track, iterate:
+Every measured value ``h_j`` says the true footprint lies on the map's ``h_j`` contour.
+Starting from the indicated track, iterate:
 
 1. for each footprint of the current track, find the closest point of its own contour
    (contours of the map window around the indicated track by

@@ -1,6 +1,6 @@
 """ICP surface matching of a multibeam point cloud, and TERCOM coarse + ICP fine (source 001).
 
-Source 001 (Cheng et al., 2023; ALGORITHMS.md section 4) registers the multibeam swath
+Source 001 (Cheng et al., Navigation Positioning and Timing, 2023) registers the multibeam swath
 as a 3-D point cloud onto the map's grid points with the iterative closest point
 algorithm (ICP), started from a TERCOM fix.
 

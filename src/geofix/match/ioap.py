@@ -1,6 +1,6 @@
 """IOAP: iterative optimal annular (ring-domain) points, gravity matching (source 004).
 
-Two ring searches replace TERCOM's square window (ALGORITHMS.md section 7):
+Two ring searches replace TERCOM's square window (Zheng, Li, Zhao, patent application 2021):
 
 1. **SPMP** (start point). Around the indicated start ``S1``, rings of radius
    ``r_i = 3 sigma0 lam i`` (``i = 1 .. 1/lam``) carry points at ``beta_j = j theta0``
