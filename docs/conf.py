@@ -1,9 +1,9 @@
 """Sphinx configuration of the geofix documentation (``make docs``).
 
-The build needs no network: no intersphinx inventories, no remote images, the theme's
-assets are installed with it. The API page of the flat namespace is written from
-``geofix.__all__`` at every build (:func:`write_namespace_page`), so it follows the
-package without a hand-kept list.
+The build needs no network, and neither does reading the site: no intersphinx
+inventories, no remote images, the theme's assets and MathJax are copied into it. The API
+page of the flat namespace is written from ``geofix.__all__`` at every build
+(:func:`write_namespace_page`), so it follows the package without a hand-kept list.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ extensions = [
     "sphinx.ext.autodoc",
     "sphinx.ext.autosummary",
     "sphinx.ext.mathjax",
+    "sphinx-mathjax-offline",  # MathJax served from the site itself, no CDN
     "sphinx.ext.viewcode",
     "numpydoc",
     "myst_parser",
