@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= out/demo
 
-.PHONY: demo test lint format results bench clean
+.PHONY: demo test lint format results bench docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -17,16 +17,16 @@ demo: $(STAMP)
 	$(BIN)/geofix demo --out $(OUT)
 
 test: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks
-	$(BIN)/ruff format --check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks examples docs/conf.py
+	$(BIN)/ruff format --check src tests benchmarks examples docs/conf.py
 	$(BIN)/pytest -q
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks examples docs/conf.py
 
 format: $(STAMP)
-	$(BIN)/ruff format src tests benchmarks
-	$(BIN)/ruff check --fix src tests benchmarks
+	$(BIN)/ruff format src tests benchmarks examples docs/conf.py
+	$(BIN)/ruff check --fix src tests benchmarks examples docs/conf.py
 
 results: $(STAMP)
 	$(BIN)/python benchmarks/results.py --out docs/RESULTS.md
@@ -34,5 +34,10 @@ results: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_tercom.py
 
+# The documentation site, offline, warnings as errors: docs/_build/html/index.html.
+docs: $(STAMP)
+	$(BIN)/pip install --quiet -e ".[docs]"
+	MPLBACKEND=Agg NUMBA_NUM_THREADS=1 $(BIN)/sphinx-build -b html -W --keep-going -q docs docs/_build/html
+
 clean:
-	rm -rf $(VENV) out .pytest_cache .ruff_cache
+	rm -rf $(VENV) out .pytest_cache .ruff_cache docs/_build docs/api/generated docs/auto_examples

@@ -23,7 +23,7 @@ LAYERS = (
     ("match", "filters"),
     ("methods",),
     ("evaluate",),
-    ("plot", "console"),
+    ("plot", "console", "report"),
     ("cli",),
     ("__main__",),
 )

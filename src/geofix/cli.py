@@ -1,6 +1,7 @@
 """The ``geofix`` command line: thin -- parse, call the public API, print or write.
 
-Commands: ``demo``, ``run``, ``methods``, ``maps``, ``suitability``, ``export``.
+Commands: ``demo``, ``run``, ``methods``, ``maps``, ``suitability``, ``export``,
+``report``.
 ``geofix run`` is a contract relied on by outside scripts (flags and JSON keys are kept
 exactly; they may be extended).
 """
@@ -321,6 +322,23 @@ def _make_out_dir(out: Path) -> None:
         raise GeofixError(f"cannot create --out folder {out}: {exc.strerror or exc}") from None
     if not os.access(out, os.W_OK | os.X_OK):
         raise GeofixError(f"cannot write in --out folder {out} (permission denied)")
+
+
+@app.command()
+def report(
+    out_dir: Annotated[Path, typer.Argument(help="Campaign folder written by geofix run --out.")],
+    out: Annotated[
+        Path | None, typer.Option(help="HTML file to write (default: OUT_DIR/report.html).")
+    ] = None,
+) -> None:
+    """Write one self-contained HTML page of a campaign: tables, bound, settings, figures."""
+
+    def go():
+        from geofix.report import write_report
+
+        _out.print(f"report: {write_report(out_dir, out)}")
+
+    _guarded(go)
 
 
 def builtin_scenario(name: str) -> Path:

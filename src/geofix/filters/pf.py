@@ -35,6 +35,7 @@ measures, the PMF's in particle form:
   within one particle's share of the area (a square of side ``h``, ``h^2`` the box area
   over ``M``), estimated from the field's differences over ``h`` at a subset of the
   particles (``discretisation_noise``, as in the PMF); it vanishes as the set concentrates.
+
 The integrity flag is the PMF's: more than ``ambiguity_mass`` of the weight farther than
 ``ambiguity_radius_cells`` map cells from the weighted mean. All draws use the ``rng``
 handed to the filter.

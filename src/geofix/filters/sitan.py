@@ -1,4 +1,4 @@
-r"""SITAN and the SITAN filter bank (source 002).
+r"""SITAN and the SITAN filter bank (source 002: Zheng, Wang, Bian, Ship Electronic Eng. 2008).
 
 SITAN (Sandia inertial terrain-aided navigation) is an extended Kalman filter on the
 error state ``X = [dx, dy, dh, dvx, dvy]``:

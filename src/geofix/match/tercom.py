@@ -3,7 +3,7 @@
 The indicated track is translated, with its shape kept, to every candidate offset of a
 square window centred on the indicated position; the map is read (bilinear) along every
 candidate and scored against the measured sequence; the best candidate is the fix
-(Golden 1980, below). Scores, over the ``L`` valid samples (all beams of all points):
+(Golden, Proc. SPIE 238, 1980). Scores, over the ``L`` valid samples (all beams of all points):
 
 - ``msd`` -- mean squared difference (minimised; the usual default),
 - ``mad`` -- mean absolute difference (minimised),
