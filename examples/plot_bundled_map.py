@@ -3,21 +3,21 @@ A bundled map
 =============
 
 geofix ships a few real maps (bathymetry and marine gravity) inside the package. Any of
-them is read with :func:`geofix.maps.load_grid` as ``"builtin:NAME"``; a lon/lat grid is
+them is read with :func:`geofix.load_map` as ``"builtin:NAME"``; a lon/lat grid is
 cut to a region (in its own degrees), projected to a local metric frame (x east, y north,
 metres) and resampled to square cells. The result is a :class:`geofix.Grid`.
 """
 
 import matplotlib.pyplot as plt
 
-from geofix.maps import bundled_maps, load_grid
+import geofix as gf
 
-for name, info in bundled_maps().items():
+for name, info in gf.bundled_maps().items():
     print(f"{name:15s} {info.description[:70]}")
 
 # %%
 # Cut the Azores bathymetry around the central islands and resample it to 2 km cells.
-grid = load_grid("builtin:azores", region=(-29.5, -27.0, 37.6, 39.6), resample_m=2000)
+grid = gf.load_map("builtin:azores", region=(-29.5, -27.0, 37.6, 39.6), resample_m=2000)
 print(grid)
 print(f"cell {grid.cell_size:.0f} m, {grid.shape[1]} x {grid.shape[0]} cells")
 

@@ -12,9 +12,9 @@ error make the indicated track drift away from the true one.
 import matplotlib.pyplot as plt
 import numpy as np
 
-from geofix.sim import prepare_map, scenario_from_dict, simulate_trial
+import geofix as gf
 
-scenario = scenario_from_dict(
+scenario = gf.scenario_from_dict(
     {
         "name": "gallery-single-beam",
         "map": {"path": "builtin:mb_1km"},
@@ -31,8 +31,8 @@ scenario = scenario_from_dict(
         "seed": 7,
     }
 )
-grid = prepare_map(scenario)
-trial = simulate_trial(scenario, grid, 0)
+grid = gf.prepare_map(scenario)
+trial = gf.simulate_trial(scenario, grid, 0)
 print(f"{trial.n} samples, {trial.measured.shape[1]} beam(s), map {grid}")
 
 # %%

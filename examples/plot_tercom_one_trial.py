@@ -3,7 +3,7 @@ TERCOM on one trial
 ===================
 
 A method is built from a specification string (``"tercom"``, ``"tercom:metric=mad"``) by
-:func:`geofix.methods.parse_method_spec`; :func:`geofix.evaluate.run_trial` runs it on a
+:func:`geofix.parse_method_spec`; :func:`geofix.run_trial` runs it on a
 trial the way a campaign does (leg by leg for a batch matcher, with the INS reset to each
 fix) and measures its errors against the truth.
 """
@@ -11,11 +11,10 @@ fix) and measures its errors against the truth.
 import matplotlib.pyplot as plt
 import numpy as np
 
-from geofix.evaluate import method_rng, run_trial
-from geofix.methods import parse_method_spec
-from geofix.sim import prepare_map, scenario_from_dict, simulate_trial
+import geofix as gf
+from geofix.evaluate import method_rng
 
-scenario = scenario_from_dict(
+scenario = gf.scenario_from_dict(
     {
         "name": "gallery-tercom",
         "map": {"path": "builtin:mb_1km"},
@@ -34,11 +33,11 @@ scenario = scenario_from_dict(
         "seed": 11,
     }
 )
-grid = prepare_map(scenario)
-trial = simulate_trial(scenario, grid, 0)
+grid = gf.prepare_map(scenario)
+trial = gf.simulate_trial(scenario, grid, 0)
 
 spec = "tercom"
-result = run_trial(parse_method_spec(spec), trial, grid, method_rng(scenario.seed, 0, spec))
+result = gf.run_trial(gf.parse_method_spec(spec), trial, grid, method_rng(scenario.seed, 0, spec))
 ins_end = np.linalg.norm(trial.indicated[-1] - trial.truth[-1])
 print(f"INS end error {ins_end:.0f} m; {spec} end error {result.end_error_m:.0f} m")
 print("error at the end of each leg (m):", np.round(result.leg_errors_m, 1))

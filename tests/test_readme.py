@@ -1,4 +1,4 @@
-"""The README's Python examples run as written."""
+"""The Python examples of the README and of the getting-started guide run as written."""
 
 import re
 from pathlib import Path
@@ -13,3 +13,13 @@ def test_readme_python_blocks_run(tmp_path, monkeypatch):
     for code in blocks:
         exec(compile(code, str(README), "exec"), {"__name__": "readme"})
     assert (tmp_path / "out" / "py" / "summary.json").exists()
+
+
+def test_getting_started_python_blocks_run(tmp_path, monkeypatch):
+    guide = README.parent / "docs" / "guide" / "getting-started.md"
+    blocks = re.findall(r"```python\n(.*?)```", guide.read_text(), flags=re.S)
+    assert len(blocks) >= 2
+    monkeypatch.chdir(tmp_path)
+    for code in blocks:
+        exec(compile(code, str(guide), "exec"), {"__name__": "guide"})
+    assert (tmp_path / "out" / "first" / "summary.json").exists()

@@ -129,7 +129,7 @@ def run_campaign(
     scheduler=None,
     progress: Callable[[int, int], None] | None = None,
 ) -> CampaignResult:
-    """Run every method on trials ``0 .. trials-1`` of a scenario, resuming stored work.
+    """Run every method on the first ``trials`` trials of a scenario, resuming stored work.
 
     Parameters
     ----------

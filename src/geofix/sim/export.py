@@ -51,7 +51,7 @@ _SAMPLE_VARS = {
 
 
 def export_trials(scenario, path: str | Path, trials: int | None = None, seed=None) -> Path:
-    """Simulate trials ``0 .. trials-1`` of a scenario and write them to netCDF.
+    """Simulate the first ``trials`` trials of a scenario and write them to netCDF.
 
     Parameters
     ----------
