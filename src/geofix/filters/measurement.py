@@ -11,9 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import map_coordinates
 
 from geofix.maps.grid import Grid
+from geofix.maps.mapread import bilinear_beams
 from geofix.match.base import footprint_xy
 
 OFF_MAP_LOG_LIKELIHOOD = -1e6
@@ -39,20 +39,15 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
     -------
     numpy.ndarray
         ``(..., b)`` predicted values; NaN off the map and wherever a cell of the bilinear
-        stencil is NaN (as :meth:`Grid.sample`), computed with
-        ``scipy.ndimage.map_coordinates`` for speed on large hypothesis sets.
+        stencil is NaN (as :meth:`Grid.sample`): the compiled read of
+        :mod:`geofix.maps.mapread`, beam offsets added in cells.
     """
     positions = np.asarray(positions, dtype=float)
     offsets = np.asarray(offsets, dtype=float)
     # The beam offsets in metres are the same for every hypothesis: add them in cells.
     ox, oy = footprint_xy(np.zeros(2), np.asarray(heading, dtype=float), offsets)
     col, row = grid.xy_to_cell(positions[..., 0].ravel(), positions[..., 1].ravel())
-    coords = np.empty((2, col.size, offsets.shape[0]))
-    np.add(row[:, None], oy / grid.dy, out=coords[0])
-    np.add(col[:, None], ox / grid.dx, out=coords[1])
-    out = map_coordinates(
-        grid.values, coords.reshape(2, -1), order=1, mode="constant", cval=np.nan, prefilter=False
-    )
+    out = bilinear_beams(grid.values, col, row, ox / grid.dx, oy / grid.dy)
     return out.reshape(*positions.shape[:-1], offsets.shape[0])
 
 
