@@ -183,3 +183,42 @@ def test_unknown_route_is_a_config_error(case):
         Tercom(route="gpu")
     with pytest.raises(ConfigError, match="route"):
         tercom_cost_surface(problem, ox, oy, route="gpu")
+
+
+def _numpy_integrity(matcher, problem, surface, ox, oy):
+    """The pseudo-likelihood covariance and ambiguity in plain numpy (reference)."""
+    samples = int(np.isfinite(problem.measured).sum())
+    best = float(np.nanmin(surface))
+    if matcher.metric == "mad":
+        scale = max(problem.noise_std / np.sqrt(2.0), best, 1e-12)
+    else:
+        scale = 2.0 * max(problem.noise_std**2, best, 1e-12)
+    w = np.exp(-samples * (np.nan_to_num(surface, nan=np.inf) - best) / scale)
+    w /= w.sum()
+    j, k = np.unravel_index(np.nanargmin(surface), surface.shape)
+    dx, dy = np.meshgrid(ox - ox[k], oy - oy[j])
+    cell = problem.grid.cell_size
+    mx, my = (w * dx).sum(), (w * dy).sum()
+    cov = np.array(
+        [
+            [(w * (dx - mx) ** 2).sum() + cell**2 / 12, (w * (dx - mx) * (dy - my)).sum()],
+            [(w * (dx - mx) * (dy - my)).sum(), (w * (dy - my) ** 2).sum() + cell**2 / 12],
+        ]
+    )
+    far = np.hypot(dx, dy) > matcher.exclusion_cells * cell
+    return cov, bool(w[far].sum() > matcher.ambiguity_mass)
+
+
+@pytest.mark.parametrize("metric", ["msd", "mad", "ncor"])
+def test_integrity_equals_the_numpy_pseudo_likelihood(metric):
+    rng = np.random.default_rng(9)
+    problem = _problem(_grid(rng), rng, n=6, beams=1, noise=2.0)  # a broad likelihood
+    matcher = Tercom(metric=metric, window_m=12 * 10.0, exclusion_cells=1.0)
+    fix = matcher.match(problem)
+    ox, oy = matcher.candidate_offsets(problem)
+    kind = "mad" if metric == "mad" else "msd"
+    cov, ambiguous = _numpy_integrity(matcher, problem, brute_force(problem, ox, oy, kind), ox, oy)
+    np.testing.assert_allclose(fix.covariance, cov, rtol=1e-9)
+    assert np.linalg.eigvalsh(cov)[-1] > 1.5 * 100.0 / 12  # more than the cell quantisation
+    flat = fix.diagnostics["terrain_snr"] < matcher.min_terrain_snr
+    assert fix.ambiguous == (ambiguous or flat)

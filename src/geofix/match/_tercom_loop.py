@@ -226,12 +226,9 @@ def _prune(partial, count, left, alive, best, exact_cost, margin, lo, hi) -> flo
     The best complete cost is improved first from the few candidates with the lowest
     partial mean (the likeliest minima). Updates ``alive``, ``lo``, ``hi`` in place.
     """
-    mean = _partial_mean(partial, count, alive)
-    flat = mean.reshape(-1)
-    few = min(_PROBES, flat.size)
-    for index in np.argpartition(flat, few - 1)[:few]:
-        if np.isfinite(flat[index]):
-            j, k = divmod(int(index), mean.shape[1])
+    for index in _lowest_means(partial, count, alive, lo, hi, _PROBES):
+        if index >= 0:
+            j, k = divmod(int(index), partial.shape[1])
             best = min(best, exact_cost(j, k))
     if np.isfinite(best):
         _prune_pass(partial, count, float(left), alive, best + margin(best), lo, hi)
@@ -243,13 +240,23 @@ _PROBES = 8
 
 
 @numba.njit(cache=True)
-def _partial_mean(partial, count, alive):  # pragma: no cover - compiled
-    out = np.full(partial.shape, np.inf)
+def _lowest_means(partial, count, alive, lo, hi, few):  # pragma: no cover - compiled
+    """Flat indices of the ``few`` live candidates of lowest partial mean (-1 = none)."""
+    best_index = np.full(few, -1, dtype=np.int64)
+    best_mean = np.full(few, np.inf)
     for j in range(partial.shape[0]):
-        for k in range(partial.shape[1]):
-            if alive[j, k] and count[j, k] > 0:
-                out[j, k] = partial[j, k] / count[j, k]
-    return out
+        for k in range(lo[j], hi[j]):
+            if not alive[j, k] or count[j, k] <= 0:
+                continue
+            mean = partial[j, k] / count[j, k]
+            if mean >= best_mean[few - 1]:
+                continue
+            q = few - 1
+            while q > 0 and best_mean[q - 1] > mean:
+                best_mean[q], best_index[q] = best_mean[q - 1], best_index[q - 1]
+                q -= 1
+            best_mean[q], best_index[q] = mean, j * partial.shape[1] + k
+    return best_index
 
 
 @numba.njit(cache=True)
@@ -289,4 +296,19 @@ def exact_costs(values, col, row, h, kc, kr, mode, need):  # pragma: no cover - 
                 valid += 1
         if valid > 0 and valid >= need:
             out[q] = acc / valid
+    return out
+
+
+@numba.njit(cache=True)
+def distance_cost(partial, count, alive, need):  # pragma: no cover - compiled
+    """``msd``/``mad`` surface: mean where enough samples were valid, NaN if not, inf if pruned."""
+    out = np.empty(partial.shape)
+    for j in range(partial.shape[0]):
+        for k in range(partial.shape[1]):
+            if not alive[j, k]:
+                out[j, k] = np.inf
+            elif count[j, k] == 0 or count[j, k] < need:
+                out[j, k] = np.nan
+            else:
+                out[j, k] = partial[j, k] / count[j, k]
     return out

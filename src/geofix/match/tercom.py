@@ -35,9 +35,11 @@ from geofix.errors import ConfigError, MatchError
 from geofix.maps import mapread
 from geofix.maps.mapread import bilinear_at
 from geofix.match._tercom_fft import SUPPORTED, fft_cost, fft_window
+from geofix.match._tercom_integrity import surface_moments
 from geofix.match._tercom_loop import (
     MODES,
     UNDERFLOW_LOG,
+    distance_cost,
     exact_costs,
     loop_sums,
     whole_cell_shifts,
@@ -157,7 +159,7 @@ class Tercom:
     def _prune_margin(self, problem: MatchProblem):
         """Cost gap beyond which a candidate's pseudo-likelihood weight is exactly zero.
 
-        The weight is ``exp(-L (cost - best) / scale)`` (:func:`_pseudo_likelihood`);
+        The weight is ``exp(-L (cost - best) / scale)`` (:meth:`_integrity`);
         with ``scale`` evaluated at an upper bound of the best cost the gap is
         conservative, so pruning such candidates changes neither fix nor integrity.
         """
@@ -166,17 +168,31 @@ class Tercom:
         return lambda best: UNDERFLOW_LOG * _likelihood_scale(kind, problem, best) / samples
 
     def _integrity(self, problem, msd, ox, oy, best) -> tuple[np.ndarray, bool]:
-        """Covariance of the offset and the ambiguity flag from an msd/mad surface."""
-        weights = _pseudo_likelihood(msd, "mad" if self.metric == "mad" else "msd", problem)
-        dx, dy = np.meshgrid(ox - ox[best[1]], oy - oy[best[0]])
+        """Covariance of the offset and the ambiguity flag from an msd/mad surface.
+
+        The pseudo-likelihood ``exp(-L (cost - min) / scale)`` (Gaussian scale for
+        ``msd``, Laplace for ``mad``) is normalised over the window; its weighted spread
+        plus the cell's quantisation variance is the covariance, its mass beyond
+        ``exclusion_cells`` from the best candidate the ambiguity test.
+        """
+        kind = "mad" if self.metric == "mad" else "msd"
+        samples = int(np.isfinite(problem.measured).sum())
+        low = float(np.nanmin(msd))
+        factor = samples / _likelihood_scale(kind, problem, low)
         cell = problem.grid.cell_size
-        far = np.hypot(dx, dy) > self.exclusion_cells * cell
-        mx, my = (weights * dx).sum(), (weights * dy).sum()
-        cxx = (weights * (dx - mx) ** 2).sum() + cell**2 / 12
-        cyy = (weights * (dy - my) ** 2).sum() + cell**2 / 12
-        cxy = (weights * (dx - mx) * (dy - my)).sum()
-        covariance = np.array([[cxx, cxy], [cxy, cyy]])
-        return covariance, bool(weights[far].sum() > self.ambiguity_mass)
+        _, _, cxx, cyy, cxy, far = surface_moments(
+            np.ascontiguousarray(msd, dtype=float),
+            low,
+            factor,
+            np.ascontiguousarray(ox, dtype=float),
+            np.ascontiguousarray(oy, dtype=float),
+            int(best[0]),
+            int(best[1]),
+            self.exclusion_cells * cell,
+        )
+        quantisation = cell**2 / 12
+        covariance = np.array([[cxx + quantisation, cxy], [cxy, cyy + quantisation]])
+        return covariance, bool(far > self.ambiguity_mass)
 
 
 ROUTES = ("auto", "loop", "fft", "direct")
@@ -320,6 +336,8 @@ def _loop(values, samples, kc, kr, metric, min_valid_fraction, prune_margin) -> 
 
         prune = (order, exact, prune_margin)
     sums, count, alive = loop_sums(values, samples.col, samples.row, h, kc, kr, mode, prune)
+    if mode in (0, 1):
+        return distance_cost(sums[0], count, alive, float(min_valid_fraction) * n)
     cost = _finish(sums, count, n, mode, min_valid_fraction)
     cost[~alive] = np.inf
     return cost
@@ -405,16 +423,6 @@ def _cost_kernel(values, col, row, h, ocol, orow, metric, min_valid_fraction):  
             else:
                 out[j, k] = acc / valid
     return out
-
-
-def _pseudo_likelihood(cost: np.ndarray, metric: str, problem: MatchProblem):
-    """Normalised weights ``exp(-L * (cost - min) / scale)`` of an msd or mad surface."""
-    samples = int(np.isfinite(problem.measured).sum())
-    best = float(np.nanmin(cost))
-    scale = _likelihood_scale(metric, problem, best)
-    logw = -samples * (np.nan_to_num(cost, nan=np.inf, posinf=np.inf) - best) / scale
-    w = np.exp(logw)
-    return w / w.sum()
 
 
 def _likelihood_scale(metric: str, problem: MatchProblem, best: float) -> float:
