@@ -1,7 +1,11 @@
 """Campaigns: every trial of a scenario with every method, in a process pool or on Dask.
 
-The map is loaded and prepared once, in the calling process, and shipped once to each
-worker (the pool's initializer, or a broadcast ``scatter`` on Dask). A task is one trial
+The map is loaded and prepared once, in the calling process, stored in float32 when
+that rounds no value by more than a hundredth of the sensor noise
+(:mod:`geofix.evaluate._shared_map`), and held once per machine: local workers map one
+read-only shared-memory copy, Dask workers get it by one broadcast ``scatter``. Tasks
+are submitted a few per worker at a time, so memory does not grow with the number of
+trials. A task is one trial
 index with the methods still to run on it, so each trial is simulated once per task.
 Workers return results; the calling process writes them to the store as they complete, so
 an interrupted campaign resumes where it stopped. The generator of method ``m`` on trial
@@ -20,12 +24,14 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import itertools
 import json
 import multiprocessing
 import os
 import sqlite3
+from collections import Counter
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +43,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from geofix.errors import ConfigError, GeofixError
+from geofix.evaluate import _shared_map
 from geofix.evaluate.crlb import rms_bound, scenario_beam_variance, trial_crlb
 from geofix.evaluate.metrics import end_mahalanobis, summarize
 from geofix.evaluate.runner import TrialResult, method_rng, run_trial
@@ -166,20 +173,22 @@ def run_campaign(
     parsed = _parse_methods(methods)
     jobs = _check_jobs(jobs)
     simulate = importlib.import_module("geofix.sim.simulate")
-    grid = simulate.prepare_map(scenario)
+    grid = _shared_map.as_storage(simulate.prepare_map(scenario), scenario.sensor.noise_std)
     simulate.simulate_trial(scenario, grid, 0)
     shash = scenario_hash(scenario)
     out = Path(out_dir)
     with ResultStore(out) as store:
-        tasks = _pending_tasks(parsed, scenario.trials, store.done_keys(shash))
-        backend = _backend(jobs, scheduler, len(tasks))
+        done_keys = store.done_keys(shash)
+        n_tasks, n_results = _pending_count(parsed, scenario.trials, done_keys)
+        tasks = _pending_tasks(parsed, scenario.trials, done_keys)
+        backend = _backend(jobs, scheduler, n_tasks)
         results = backend(simulate.simulate_trial, scenario, grid, tasks)
         computed = 0
         bounds = _open_bounds(store.path)
         with (
             closing(bounds),
             closing(results),
-            _Bar(progress, scenario.name, sum(len(t[1]) for t in tasks)) as bar,
+            _Bar(progress, scenario.name, n_results) as bar,
         ):
             for done, info in results:
                 for spec, index, result in done:
@@ -213,13 +222,20 @@ def _parse_methods(methods: list[str]) -> dict[str, object]:
     return {spec: parse_method_spec(spec) for spec in methods}
 
 
-def _pending_tasks(parsed: dict, trials: int, done: set) -> list[_Task]:
-    tasks = []
+def _pending_tasks(parsed: dict, trials: int, done: set) -> Iterator[_Task]:
+    """The tasks still to run, made one at a time (memory does not grow with ``trials``)."""
     for index in range(trials):
         todo = [(spec, m) for spec, m in parsed.items() if (spec, index) not in done]
         if todo:
-            tasks.append((index, todo))
-    return tasks
+            yield index, todo
+
+
+def _pending_count(parsed: dict, trials: int, done: set) -> tuple[int, int]:
+    """``(tasks, results)`` still to compute: trials with a pending method, and pairs."""
+    per_trial = Counter(index for spec, index in done if spec in parsed and index < trials)
+    results = trials * len(parsed) - sum(per_trial.values())
+    full = sum(1 for count in per_trial.values() if count == len(parsed))
+    return trials - full, results
 
 
 def _campaign_frame(frame: pd.DataFrame, specs: list[str], trials: int) -> pd.DataFrame:
@@ -389,12 +405,15 @@ def _run_inline(simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
 
 
 _WORKER_GRID: Grid | None = None
+# Tasks in flight per local worker: enough to keep every worker busy, few enough that
+# memory does not grow with the number of trials.
+_IN_FLIGHT_PER_WORKER = 4
 
 
-def _init_worker(grid: Grid) -> None:
-    """Pool initializer: keep the map for every task of this worker; one numba thread."""
+def _init_worker(handle: _shared_map.SharedGridHandle) -> None:
+    """Pool initializer: map the shared read-only map for every task; one numba thread."""
     global _WORKER_GRID
-    _WORKER_GRID = grid
+    _WORKER_GRID = _shared_map.attach(handle)
     import numba
 
     numba.set_num_threads(1)
@@ -405,14 +424,31 @@ def _pool_task(simulate_trial, scenario, task) -> _Done:
 
 
 def _run_pool(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
+    """Local worker processes sharing one read-only copy of the map, bounded submission."""
     context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(jobs, context, initializer=_init_worker, initargs=(grid,))
-    try:
-        futures = [pool.submit(_pool_task, simulate_trial, scenario, task) for task in tasks]
-        for future in as_completed(futures):
+    with _shared_map.SharedGrid(grid, grid.values.dtype) as shared:
+        pool = ProcessPoolExecutor(
+            jobs, context, initializer=_init_worker, initargs=(shared.handle,)
+        )
+        try:
+
+            def submit(task):
+                return pool.submit(_pool_task, simulate_trial, scenario, task)
+
+            yield from _bounded(submit, iter(tasks), jobs * _IN_FLIGHT_PER_WORKER)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _bounded(submit: Callable, tasks: Iterator, limit: int) -> Iterator[_Done]:
+    """Results of ``submit(task)`` futures, at most ``limit`` in flight, as they complete."""
+    pending = {submit(task) for task in itertools.islice(tasks, limit)}
+    while pending:
+        finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+        for future in finished:
+            for task in itertools.islice(tasks, 1):
+                pending.add(submit(task))
             yield future.result()
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _run_dask(scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
@@ -420,15 +456,20 @@ def _run_dask(scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Don
 
     with distributed.Client(scheduler) as client:
         shared = client.scatter(grid, broadcast=True)
-        futures = [
-            client.submit(run_task, simulate_trial, scenario, shared, task, pure=False)
-            for task in tasks
-        ]
+        limit = _IN_FLIGHT_PER_WORKER * max(1, len(client.scheduler_info()["workers"]))
+        tasks = iter(tasks)
+
+        def submit(task):
+            return client.submit(run_task, simulate_trial, scenario, shared, task, pure=False)
+
+        running = distributed.as_completed([submit(t) for t in itertools.islice(tasks, limit)])
         try:
-            for future in distributed.as_completed(futures):
+            for future in running:
+                for task in itertools.islice(tasks, 1):
+                    running.add(submit(task))
                 yield future.result()
         finally:
-            client.cancel(futures)
+            client.cancel(list(running.futures))
 
 
 class _Bar:

@@ -19,7 +19,9 @@ class Grid:
     Parameters
     ----------
     values : numpy.ndarray
-        ``(ny, nx)`` field values; NaN marks no data. Row 0 is the southern edge.
+        ``(ny, nx)`` field values; NaN marks no data. Row 0 is the southern edge. Stored
+        as a read-only float64 copy; an array that is already read-only, C-contiguous
+        and float64 or float32 (a shared or compact map) is kept as it is, not copied.
     x0, y0 : float
         Easting and northing of the centre of cell ``[0, 0]``, metres.
     dx, dy : float
@@ -45,7 +47,7 @@ class Grid:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        values = np.asarray(self.values, dtype=float)
+        values = _stored_values(self.values)
         if values.ndim != 2 or min(values.shape) < 2:
             raise MapError(f"map {self.name!r}: values must be a 2-D array of at least 2x2")
         if not (self.dx > 0 and self.dy > 0):
@@ -54,10 +56,8 @@ class Grid:
             )
         if self.kind not in KINDS:
             raise MapError(f"map {self.name!r}: kind must be one of {KINDS}, got {self.kind!r}")
-        if np.all(np.isnan(values)):
+        if np.isnan(np.fmax.reduce(values, axis=None)):  # all NaN, without a temporary
             raise MapError(f"map {self.name!r}: every cell is NaN (no data)")
-        values = values.copy()
-        values.flags.writeable = False
         object.__setattr__(self, "values", values)
 
     # ------------------------------------------------------------------ geometry
@@ -153,6 +153,21 @@ class Grid:
             f"Grid(name={self.name!r}, kind={self.kind!r}, shape=({ny}, {nx}), "
             f"cell=({self.dx:g}, {self.dy:g}) m, units={self.units!r})"
         )
+
+
+def _stored_values(values) -> np.ndarray:
+    """Read-only C-contiguous float values: kept if already so (float32/64), else copied."""
+    array = np.asarray(values)
+    keep = (
+        array.dtype in (np.float32, np.float64)
+        and not array.flags.writeable
+        and array.flags.c_contiguous
+    )
+    if keep:
+        return array
+    array = np.array(array, dtype=float, order="C")
+    array.flags.writeable = False
+    return array
 
 
 def _bilinear(values: np.ndarray, col, row) -> np.ndarray:
