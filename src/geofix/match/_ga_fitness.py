@@ -23,7 +23,8 @@ def ga_costs(
     values,
     geometry,
     indicated,
-    heading,
+    sin_heading,
+    cos_heading,
     pivot,
     offsets,
     params,
@@ -44,8 +45,10 @@ def ga_costs(
         ``(4,)`` ``x0, y0, dx, dy`` of the map, metres.
     indicated : numpy.ndarray
         ``(n, 2)`` indicated track, metres.
-    heading : numpy.ndarray
-        ``(n,)`` indicated heading, radians clockwise from north.
+    sin_heading, cos_heading : numpy.ndarray
+        ``(n,)`` sine and cosine of the indicated heading (clockwise from north); the
+        heading ``psi - theta`` of a rotated track is formed by the angle-difference
+        identities, so no trigonometric call is made per sample.
     pivot : numpy.ndarray
         ``(2,)`` pivot of rotation and scale, metres.
     offsets : numpy.ndarray
@@ -83,8 +86,8 @@ def ga_costs(
             rx, ry = indicated[i, 0] - pivot[0], indicated[i, 1] - pivot[1]
             px = pivot[0] + alpha * (c * rx - sn * ry) + tx
             py = pivot[1] + alpha * (sn * rx + c * ry) + ty
-            psi = heading[i] - theta
-            ss, cs = np.sin(psi), np.cos(psi)
+            ss = sin_heading[i] * c - cos_heading[i] * sn  # sin(psi - theta)
+            cs = cos_heading[i] * c + sin_heading[i] * sn  # cos(psi - theta)
             for b in range(s):
                 h = measured[i, b]
                 if h != h:
