@@ -129,3 +129,18 @@ def test_beams_read_equals_pointwise_read(grid):
 def test_unknown_method_raises(grid):
     with pytest.raises(ValueError, match="unknown sampling method"):
         grid.sample(0.0, 0.0, method="cubic")
+
+
+def test_grid_keeps_read_only_float_arrays_and_copies_the_rest():
+    base = np.arange(12.0).reshape(3, 4)
+    copied = Grid(base, 0.0, 0.0, 1.0, 1.0)
+    base[0, 0] = 99.0
+    assert copied.values[0, 0] == 0.0 and not copied.values.flags.writeable
+    single = base.astype(np.float32)
+    assert Grid(single, 0.0, 0.0, 1.0, 1.0).values.dtype == np.float64  # writeable: copied
+    single.flags.writeable = False
+    kept = Grid(single, 0.0, 0.0, 1.0, 1.0)
+    assert kept.values is single and kept.values.dtype == np.float32
+    strided = np.arange(24.0).reshape(3, 8)[:, ::2]
+    strided.flags.writeable = False
+    assert Grid(strided, 0.0, 0.0, 1.0, 1.0).values.flags.c_contiguous

@@ -1,8 +1,7 @@
 """GA-SCA: multibeam matching by a genetic algorithm refined with the sine-cosine algorithm.
 
-Source 000 (Zhang, Zhang, Zhang, J. Chinese Inertial Technology 30(4), 2022;
-ALGORITHMS.md section 3). The matched track is a four-parameter transform of the
-indicated track,
+Source 000 (Zhang, Zhang, Zhang, J. Chinese Inertial Technology 30(4), 2022). The
+matched track is a four-parameter transform of the indicated track,
 
     p' = p_0 + alpha * R(theta) (p - p_0) + (t_x, t_y),
 

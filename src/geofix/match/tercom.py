@@ -3,7 +3,8 @@
 The indicated track is translated, with its shape kept, to every candidate offset of a
 square window centred on the indicated position; the map is read (bilinear) along every
 candidate and scored against the measured sequence; the best candidate is the fix
-(ALGORITHMS.md section 1). Scores, over the ``L`` valid samples (all beams of all points):
+(Baker and Clem, "Terrain contour matching (TERCOM) primer", ASD-TR-77-61, 1977).
+Scores, over the ``L`` valid samples (all beams of all points):
 
 - ``msd`` -- mean squared difference (minimised; the usual default),
 - ``mad`` -- mean absolute difference (minimised),
@@ -21,6 +22,14 @@ when the terrain along it is too flat to tell: the standard deviation of the map
 matched footprints is below ``min_terrain_snr`` times the sensor noise (a surface whose
 relief drowns in the noise, such as a flat sediment plain, makes the pseudo-likelihood
 overconfident: the small INS drift inside the window then picks the minimum).
+
+Computation (:func:`tercom_cost_surface`, all routes give the same surface to rounding):
+with whole-cell candidate spacing the ``loop`` route keeps each sample's four bilinear
+weights fixed and sweeps contiguous map rows (``msd``/``mad`` with branch-and-bound on
+samples ordered by map gradient), the ``fft`` route correlates the map with sparse
+kernels built from the track (``msd``, ``cor``, ``ncor``; not ``mad``); any other spacing
+takes the ``direct`` route. ``route="auto"`` picks the cheaper of the first two by a cost
+model of reads against transform sizes.
 """
 
 from __future__ import annotations
