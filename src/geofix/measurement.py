@@ -22,9 +22,9 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import map_coordinates
 
 from geofix.maps.grid import Grid
+from geofix.maps.mapread import bilinear_beams
 from geofix.maps.terrain import gradient, plane_fit
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import footprint_xy
@@ -52,8 +52,8 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
     -------
     numpy.ndarray
         ``(..., b)`` predicted values; NaN off the map and wherever a cell of the bilinear
-        stencil is NaN (as :meth:`Grid.sample`), computed with
-        ``scipy.ndimage.map_coordinates`` for speed on large hypothesis sets.
+        stencil is NaN (as :meth:`Grid.sample`): the compiled read of
+        :mod:`geofix.maps.mapread`, beam offsets added in cells.
     """
     positions = np.asarray(positions, dtype=float)
     offsets = np.asarray(offsets, dtype=float)
@@ -65,12 +65,7 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
         f"map prediction of {hypotheses} hypotheses x {offsets.shape[0]} beams",
     )
     col, row = grid.xy_to_cell(positions[..., 0].ravel(), positions[..., 1].ravel())
-    coords = np.empty((2, col.size, offsets.shape[0]))
-    np.add(row[:, None], oy / grid.dy, out=coords[0])
-    np.add(col[:, None], ox / grid.dx, out=coords[1])
-    out = map_coordinates(
-        grid.values, coords.reshape(2, -1), order=1, mode="constant", cval=np.nan, prefilter=False
-    )
+    out = bilinear_beams(grid.values, col, row, ox / grid.dx, oy / grid.dy)
     return out.reshape(*positions.shape[:-1], offsets.shape[0])
 
 

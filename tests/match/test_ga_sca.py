@@ -124,3 +124,31 @@ def test_settings_are_validated_and_parsed():
     method = parse_method_spec("ga-sca:variant=C,weights=0.6/0.2/0.2,decay=0.9")
     assert method.variant == "C" and method.weights == (0.6, 0.2, 0.2)
     assert method.uses_sca and not method.uses_new_fitness
+
+
+@pytest.mark.parametrize("variant", ["A", "D"])
+def test_compiled_fitness_equals_the_numpy_reference(terrain, variant):
+    problem, _ = make_problem(terrain, 14.0, -9.0, 1.01, 1.2, noise=0.3)
+    problem.measured[4, 10] = np.nan  # a missing centre beam
+    matcher = GaSca(variant=variant)
+    ctx = matcher._context(problem)
+    rng = np.random.default_rng(5)
+    params = rng.uniform(ctx.lower, ctx.upper, size=(300, 4))
+    params[:3, :2] = [[1e4, 0.0], [0.0, -1e4], [150.0, 150.0]]  # off the map, or partly
+    compiled = matcher._evaluate(ctx, params)
+    reference = matcher._evaluate_numpy(ctx, params)
+    for got, expected in zip(compiled, reference, strict=True):
+        np.testing.assert_array_equal(np.isinf(got), np.isinf(expected))
+        ok = np.isfinite(expected)
+        assert 0 < ok.sum() < len(params)
+        np.testing.assert_allclose(got[ok], expected[ok], rtol=1e-12)
+
+
+def test_numpy_engine_gives_the_same_fix(terrain):
+    problem, _ = make_problem(terrain, 6.0, 4.0, 0.995, -0.8, noise=0.3)
+    fast = GaSca(max_generations=60).match(problem, np.random.default_rng(3))
+    slow = GaSca(max_generations=60, engine="numpy").match(problem, np.random.default_rng(3))
+    np.testing.assert_allclose(fast.track, slow.track, atol=1e-6)
+    assert fast.diagnostics["generations"] == slow.diagnostics["generations"]
+    with pytest.raises(ConfigError, match="engine"):
+        GaSca(engine="fortran")

@@ -1,7 +1,11 @@
 """Campaigns: every trial of a scenario with every method, in a process pool or on Dask.
 
-The map is loaded and prepared once, in the calling process, and shipped once to each
-worker (the pool's initializer, or a broadcast ``scatter`` on Dask). A task is one trial
+The map is loaded and prepared once, in the calling process, stored in float32 when
+that rounds no value by more than a hundredth of the sensor noise
+(:mod:`geofix.evaluate._shared_map`), and held once per machine: local workers map one
+read-only shared-memory copy, Dask workers get it by one broadcast ``scatter``. Tasks
+are submitted a few per worker at a time, so memory does not grow with the number of
+trials. A task is one trial
 index with the methods still to run on it, so each trial is simulated once per task.
 Workers return results; the calling process writes them to the store as they complete, so
 an interrupted campaign resumes where it stopped. The generator of method ``m`` on trial
@@ -21,13 +25,15 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import importlib
+import itertools
 import json
 import multiprocessing
 import os
 import sqlite3
 import warnings
+from collections import Counter
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import closing
 from dataclasses import dataclass, field
@@ -37,6 +43,7 @@ import numpy as np
 import pandas as pd
 
 from geofix.errors import ConfigError, GeofixError, GeofixWarning
+from geofix.evaluate import _shared_map
 from geofix.evaluate._workers import bind_to_parent, sigint_deferred, stop_workers
 from geofix.evaluate.crlb import rms_bound, scenario_beam_variance, trial_crlb
 from geofix.evaluate.metrics import end_mahalanobis, summarize
@@ -184,17 +191,19 @@ def run_campaign(
     out = Path(out_dir)
     check_out_dir(out)
     simulate = importlib.import_module("geofix.sim.simulate")
-    grid = simulate.prepare_map(scenario)
+    grid = _shared_map.as_storage(simulate.prepare_map(scenario), scenario.sensor.noise_std)
     check_methods_fit(parsed, simulate.simulate_trial(scenario, grid, 0))
     shash = scenario_hash(scenario)
     with ResultStore(out) as store:
-        tasks = _pending_tasks(parsed, scenario.trials, store.done_keys(shash))
-        backend = _backend(jobs, scheduler, len(tasks))
+        done_keys = store.done_keys(shash)
+        n_tasks, n_results = _pending_count(parsed, scenario.trials, done_keys)
+        tasks = _pending_tasks(parsed, scenario.trials, done_keys)
+        backend = _backend(jobs, scheduler, n_tasks)
         results = backend(simulate.simulate_trial, scenario, grid, tasks)
         computed = 0
         bounds = _open_bounds(store.path)
-        total = sum(len(t[1]) for t in tasks)
         report = progress or _no_progress
+        total = n_results
         report(0, total)
         with closing(bounds), closing(results):
             for done, info in results:
@@ -266,13 +275,20 @@ def _parse_methods(methods: list[str]) -> dict[str, object]:
     return {spec: parse_method_spec(spec) for spec in methods}
 
 
-def _pending_tasks(parsed: dict, trials: int, done: set) -> list[_Task]:
-    tasks = []
+def _pending_tasks(parsed: dict, trials: int, done: set) -> Iterator[_Task]:
+    """The tasks still to run, made one at a time (memory does not grow with ``trials``)."""
     for index in range(trials):
         todo = [(spec, m) for spec, m in parsed.items() if (spec, index) not in done]
         if todo:
-            tasks.append((index, todo))
-    return tasks
+            yield index, todo
+
+
+def _pending_count(parsed: dict, trials: int, done: set) -> tuple[int, int]:
+    """``(tasks, results)`` still to compute: trials with a pending method, and pairs."""
+    per_trial = Counter(index for spec, index in done if spec in parsed and index < trials)
+    results = trials * len(parsed) - sum(per_trial.values())
+    full = sum(1 for count in per_trial.values() if count == len(parsed))
+    return trials - full, results
 
 
 def _campaign_frame(frame: pd.DataFrame, specs: list[str], trials: int) -> pd.DataFrame:
@@ -460,14 +476,17 @@ def _run_inline(simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
 
 
 _WORKER_GRID: Grid | None = None
+# Tasks in flight per local worker: enough to keep every worker busy, few enough that
+# memory does not grow with the number of trials.
+_IN_FLIGHT_PER_WORKER = 4
 
 
-def _init_worker(grid: Grid, parent_pid: int | None = None) -> None:
-    """Pool initializer: die with the parent; keep the map for every task; one numba thread."""
+def _init_worker(handle: _shared_map.SharedGridHandle, parent_pid: int | None = None) -> None:
+    """Pool initializer: die with the parent; map the shared read-only map; one numba thread."""
     global _WORKER_GRID
     if parent_pid is not None:
         bind_to_parent(parent_pid)
-    _WORKER_GRID = grid
+    _WORKER_GRID = _shared_map.attach(handle)
     import numba
 
     numba.set_num_threads(1)
@@ -478,28 +497,43 @@ def _pool_task(simulate_trial, scenario, task) -> _Done:
 
 
 def _run_pool(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
+    """Local worker processes sharing one read-only copy of the map, bounded submission."""
     context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(
-        jobs, context, initializer=_init_worker, initargs=(grid, os.getpid())
-    )
-    finished = False
-    try:
-        with sigint_deferred():  # workers are started by the submits
-            futures = [pool.submit(_pool_task, simulate_trial, scenario, task) for task in tasks]
-        for future in as_completed(futures):
+    with _shared_map.SharedGrid(grid, grid.values.dtype) as shared:
+        pool = ProcessPoolExecutor(
+            jobs, context, initializer=_init_worker, initargs=(shared.handle, os.getpid())
+        )
+        finished = False
+        try:
+
+            def submit(task):
+                with sigint_deferred():  # a worker started by this submit holds Ctrl-C
+                    return pool.submit(_pool_task, simulate_trial, scenario, task)
+
             try:
-                yield future.result()
+                yield from _bounded(submit, iter(tasks), jobs * _IN_FLIGHT_PER_WORKER)
             except BrokenProcessPool:
                 raise GeofixError(
                     "a worker process died (killed, or out of memory); finished trials are "
                     "stored: run the same command to resume"
                 ) from None
-        finished = True
-    finally:
-        if finished:
-            pool.shutdown(wait=True)
-        else:
-            stop_workers(pool)
+            finished = True
+        finally:
+            if finished:
+                pool.shutdown(wait=True)
+            else:
+                stop_workers(pool)
+
+
+def _bounded(submit: Callable, tasks: Iterator, limit: int) -> Iterator[_Done]:
+    """Results of ``submit(task)`` futures, at most ``limit`` in flight, as they complete."""
+    pending = {submit(task) for task in itertools.islice(tasks, limit)}
+    while pending:
+        finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+        for future in finished:
+            for task in itertools.islice(tasks, 1):
+                pending.add(submit(task))
+            yield future.result()
 
 
 def _run_dask(scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
@@ -514,16 +548,21 @@ def _dask_results(client, scheduler, simulate_trial, scenario, grid, tasks) -> I
     with _quiet_dask_logs(), client:
         try:
             shared = client.scatter(grid, broadcast=True)
-            futures = [
-                client.submit(run_task, simulate_trial, scenario, shared, task, pure=False)
-                for task in tasks
-            ]
+            limit = _IN_FLIGHT_PER_WORKER * max(1, len(client.scheduler_info()["workers"]))
+            tasks = iter(tasks)
+
+            def submit(task):
+                return client.submit(run_task, simulate_trial, scenario, shared, task, pure=False)
+
+            running = distributed.as_completed([submit(t) for t in itertools.islice(tasks, limit)])
             try:
-                for future in distributed.as_completed(futures):
+                for future in running:
+                    for task in itertools.islice(tasks, 1):
+                        running.add(submit(task))
                     yield future.result()
             finally:
                 with contextlib.suppress(Exception):
-                    client.cancel(futures)
+                    client.cancel(list(running.futures))
         except _dask_lost_errors() as exc:
             raise GeofixError(
                 f"Dask scheduler {_label(scheduler)} lost the campaign's workers "

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from geofix.errors import MapError
+from geofix.maps import mapread
 
 KINDS = ("depth", "gravity")
 
@@ -18,7 +19,9 @@ class Grid:
     Parameters
     ----------
     values : numpy.ndarray
-        ``(ny, nx)`` field values; NaN marks no data. Row 0 is the southern edge.
+        ``(ny, nx)`` field values; NaN marks no data. Row 0 is the southern edge. Stored
+        as a read-only float64 copy; an array that is already read-only, C-contiguous
+        and float64 or float32 (a shared or compact map) is kept as it is, not copied.
     x0, y0 : float
         Easting and northing of the centre of cell ``[0, 0]``, metres.
     dx, dy : float
@@ -44,7 +47,7 @@ class Grid:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        values = np.asarray(self.values, dtype=float)
+        values = _stored_values(self.values)
         if values.ndim != 2 or min(values.shape) < 2:
             raise MapError(f"map {self.name!r}: values must be a 2-D array of at least 2x2")
         if not (self.dx > 0 and self.dy > 0):
@@ -53,10 +56,8 @@ class Grid:
             )
         if self.kind not in KINDS:
             raise MapError(f"map {self.name!r}: kind must be one of {KINDS}, got {self.kind!r}")
-        if np.all(np.isnan(values)):
+        if np.isnan(np.fmax.reduce(values, axis=None)):  # all NaN, without a temporary
             raise MapError(f"map {self.name!r}: every cell is NaN (no data)")
-        values = values.copy()
-        values.flags.writeable = False
         object.__setattr__(self, "values", values)
 
     # ------------------------------------------------------------------ geometry
@@ -116,12 +117,24 @@ class Grid:
             Field values, broadcast shape of ``x`` and ``y``; NaN off the map and in
             no-data cells.
         """
-        col, row = self.xy_to_cell(x, y)
-        if method == "bilinear":
-            return _bilinear(self.values, col, row)
-        if method == "nearest":
-            return _nearest(self.values, col, row)
-        raise ValueError(f"unknown sampling method {method!r}; use 'bilinear' or 'nearest'")
+        return mapread.read_xy(self.values, self.x0, self.y0, self.dx, self.dy, x, y, method)
+
+    def sample_gradient(self, x, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Bilinear value and gradient of the field at metric positions.
+
+        Parameters
+        ----------
+        x, y : array_like
+            Eastings and northings, metres; any (broadcastable) shape.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            ``(value, d/dx, d/dy)`` in field units and field units per metre, the gradient
+            of the bilinear interpolant (:mod:`geofix.maps.mapread`); NaN off the map and
+            wherever a stencil cell is NaN.
+        """
+        return mapread.gradient_xy(self.values, self.x0, self.y0, self.dx, self.dy, x, y)
 
     # ------------------------------------------------------------------ derived grids
     def with_values(self, values: np.ndarray, **changes) -> Grid:
@@ -142,34 +155,21 @@ class Grid:
         )
 
 
+def _stored_values(values) -> np.ndarray:
+    """Read-only C-contiguous float values: kept if already so (float32/64), else copied."""
+    array = np.asarray(values)
+    keep = (
+        array.dtype in (np.float32, np.float64)
+        and not array.flags.writeable
+        and array.flags.c_contiguous
+    )
+    if keep:
+        return array
+    array = np.array(array, dtype=float, order="C")
+    array.flags.writeable = False
+    return array
+
+
 def _bilinear(values: np.ndarray, col, row) -> np.ndarray:
-    col = np.asarray(col, dtype=float)
-    row = np.asarray(row, dtype=float)
-    col, row = np.broadcast_arrays(col, row)
-    ny, nx = values.shape
-    inside = (col >= 0) & (col <= nx - 1) & (row >= 0) & (row <= ny - 1)
-    c = np.where(inside, col, 0.0)
-    r = np.where(inside, row, 0.0)
-    c0 = np.minimum(np.floor(c).astype(np.intp), nx - 2)
-    r0 = np.minimum(np.floor(r).astype(np.intp), ny - 2)
-    fc = c - c0
-    fr = r - r0
-    v00 = values[r0, c0]
-    v01 = values[r0, c0 + 1]
-    v10 = values[r0 + 1, c0]
-    v11 = values[r0 + 1, c0 + 1]
-    out = (v00 * (1 - fc) + v01 * fc) * (1 - fr) + (v10 * (1 - fc) + v11 * fc) * fr
-    return np.where(inside, out, np.nan)
-
-
-def _nearest(values: np.ndarray, col, row) -> np.ndarray:
-    col = np.asarray(col, dtype=float)
-    row = np.asarray(row, dtype=float)
-    col, row = np.broadcast_arrays(col, row)
-    ny, nx = values.shape
-    ic = np.rint(col)
-    ir = np.rint(row)
-    inside = (ic >= 0) & (ic <= nx - 1) & (ir >= 0) & (ir <= ny - 1)
-    ic = np.where(inside, ic, 0).astype(np.intp)
-    ir = np.where(inside, ir, 0).astype(np.intp)
-    return np.where(inside, values[ir, ic], np.nan)
+    """Bilinear values at fractional cells (the compiled read of :mod:`geofix.maps.mapread`)."""
+    return mapread.bilinear_cells(values, col, row)

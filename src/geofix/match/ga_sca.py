@@ -45,8 +45,10 @@ best cost seen has not improved by more than ``tolerance`` (relative) for
 the diagnostics is the generation of the last such improvement (the source's
 "iterations at convergence"), ``generations`` the number run.
 
-Each generation's population (and each SCA step) is scored in one vectorised bilinear
-look-up of all individuals x samples x sequences.
+Each generation's population (and each SCA step) is scored in one call of a compiled
+kernel (:mod:`geofix.match._ga_fitness`: transform, footprints, the shared bilinear read
+and the three costs in one pass); ``engine="numpy"`` keeps the vectorised numpy
+formulation (one look-up of all individuals x samples x sequences) as the reference.
 """
 
 from __future__ import annotations
@@ -65,6 +67,7 @@ from geofix.match._affine import (
     translation_covariance,
     window_std,
 )
+from geofix.match._ga_fitness import ga_costs, ga_offspring, sca_refine
 from geofix.match.integrity import terrain_integrity
 from geofix.problem import Fix, MatchProblem
 
@@ -85,6 +88,11 @@ class _Context:
     lower: np.ndarray
     upper: np.ndarray
     spacing_m: float
+    values: np.ndarray
+    geometry: np.ndarray
+    indicated: np.ndarray
+    heading: np.ndarray
+    offsets: np.ndarray
     counter: list = field(default_factory=lambda: [0])
 
 
@@ -152,6 +160,9 @@ class GaSca:
         is only the backstop for a plain: the flat NAVO survey gives 0.2-0.5 at the fixes,
         the gentlest benchmark terrain (source 000, terrain A) 0.74-0.97 at fixes mostly
         within a few cells, all of which a threshold of 1 flagged.
+    engine : str
+        ``"numba"`` (compiled fitness, the default) or ``"numpy"`` (the vectorised
+        reference); both give the same costs up to the order of summation.
 
     References
     ----------
@@ -194,6 +205,7 @@ class GaSca:
     exclusion_cells: float = 10.0
     ambiguity_mass: float = 0.05
     min_terrain_snr: float = 0.6
+    engine: str = "numba"
 
     def __post_init__(self) -> None:
         if self.variant not in _VARIANTS:
@@ -205,6 +217,8 @@ class GaSca:
             raise ConfigError(f"ga-sca: weights need three values with w1 > w2, w3; got {w}")
         if not 0 < self.decay <= 1:
             raise ConfigError(f"ga-sca: decay must be in (0, 1], got {self.decay}")
+        if self.engine not in ("numba", "numpy"):
+            raise ConfigError(f"ga-sca: engine must be 'numba' or 'numpy', got {self.engine!r}")
 
     @property
     def uses_new_fitness(self) -> bool:
@@ -247,9 +261,7 @@ class GaSca:
             elite, elite_cost, sca_pop, sca_cost = self._sca(ctx, elite, rng)
             pool = np.vstack([np.delete(pop, k, axis=0), elite[None], sca_pop])
             pool_cost = np.concatenate([np.delete(cost, k), [elite_cost], sca_cost])
-        parents = pool[_tournament(pool_cost, 2 * (self.population // 2), rng)]
-        children = self._mutate(self._crossover(parents, rng, ctx), rng, ctx)
-        children = children[: self.population - 1]
+        children = self._offspring(ctx, pool, pool_cost, rng)
         new_cost, _, new_mad = self._evaluate(ctx, children)
         archive.append((children, new_mad))
         return (
@@ -259,6 +271,24 @@ class GaSca:
         )
 
     # ------------------------------------------------------------------ operators
+    def _offspring(self, ctx, pool, pool_cost, rng):
+        """``population - 1`` children: tournament, crossover, mutation."""
+        if self.engine == "numpy":
+            parents = pool[_tournament(pool_cost, 2 * (self.population // 2), rng)]
+            children = self._mutate(self._crossover(parents, rng, ctx), rng, ctx)
+            return children[: self.population - 1]
+        return ga_offspring(
+            rng,
+            np.ascontiguousarray(pool, dtype=float),
+            np.ascontiguousarray(pool_cost, dtype=float),
+            int(self.population),
+            float(self.crossover_rate),
+            float(self.mutation_rate),
+            float(self.mutation_scale),
+            ctx.lower,
+            ctx.upper,
+        )
+
     def _crossover(self, parents, rng, ctx):
         """Blend crossover (BLX-0.25) of consecutive parent pairs."""
         a, b = parents[0::2], parents[1::2]
@@ -278,6 +308,24 @@ class GaSca:
     def _sca(self, ctx, elite, rng):
         """Sine-cosine refinement around the elite; returns new elite and SCA population."""
         half = 0.5 * (ctx.upper - ctx.lower) * np.array([0.1, 0.1, 0.2, 0.2])
+        if self.engine == "numpy":
+            return self._sca_numpy(ctx, elite, rng, half)
+        ctx.counter[0] += self.sca_population * (self.sca_iterations + 1)
+        new_elite, p_ga, x, cost = sca_refine(
+            rng,
+            np.asarray(elite, dtype=float),
+            half,
+            ctx.lower,
+            ctx.upper,
+            int(self.sca_population),
+            int(self.sca_iterations),
+            float(self.sca_a),
+            self._fitness_args(ctx),
+        )
+        return new_elite, float(p_ga), x, cost
+
+    def _sca_numpy(self, ctx, elite, rng, half):
+        """The SCA refinement in numpy (reference of :func:`sca_refine`)."""
         z = rng.uniform(-1.0, 1.0, size=(self.sca_population, 4))
         z[0] = 0.0
         x = elite + z * half
@@ -305,7 +353,36 @@ class GaSca:
 
     # ------------------------------------------------------------------ costs
     def _evaluate(self, ctx: _Context, params: np.ndarray):
-        """GA cost, SCA cost and mean absolute difference of every individual.
+        """GA cost, SCA cost and mean absolute difference of every individual."""
+        if self.engine == "numpy":
+            return self._evaluate_numpy(ctx, params)
+        ctx.counter[0] += params.shape[0]
+        head, tail = self._fitness_args(ctx)
+        return ga_costs(*head, np.ascontiguousarray(params, dtype=float), *tail)
+
+    def _fitness_args(self, ctx: _Context) -> tuple:
+        """Arguments of :func:`ga_costs` before and after ``params``."""
+        head = (
+            ctx.values,
+            ctx.geometry,
+            ctx.indicated,
+            np.sin(ctx.heading),
+            np.cos(ctx.heading),
+            ctx.pivot,
+            ctx.offsets,
+        )
+        tail = (
+            ctx.measured,
+            ctx.decay,
+            ctx.weights,
+            self.uses_new_fitness,
+            float(self.min_valid_fraction),
+            int(ctx.valid.sum()),
+        )
+        return head, tail
+
+    def _evaluate_numpy(self, ctx: _Context, params: np.ndarray):
+        """GA cost, SCA cost and mean absolute difference of every individual (numpy).
 
         One bilinear look-up for all individuals x samples x sequences.
         """
@@ -335,6 +412,7 @@ class GaSca:
         """Search box, sequences, weights and decay for one problem."""
         if problem.n < 2:
             raise MatchError("ga-sca: need at least two samples")
+        grid = problem.grid
         eps = (
             self.eps_xy_m
             if self.eps_xy_m > 0
@@ -349,7 +427,7 @@ class GaSca:
         )
         beams = nearest_beams(problem.offsets, spacing)
         w = np.asarray(self.weights, float)[: len(beams)]
-        measured = problem.measured[:, beams]
+        measured = np.ascontiguousarray(problem.measured[:, beams], dtype=float)
         valid = np.isfinite(measured)
         if valid.sum() < 2:
             raise MatchError("ga-sca: fewer than two valid measurements")
@@ -364,6 +442,11 @@ class GaSca:
             lower=lower,
             upper=upper,
             spacing_m=spacing,
+            values=np.ascontiguousarray(problem.grid.values),
+            geometry=np.array([grid.x0, grid.y0, grid.dx, grid.dy], dtype=float),
+            indicated=np.ascontiguousarray(problem.indicated, dtype=float),
+            heading=np.ascontiguousarray(problem.heading, dtype=float),
+            offsets=np.ascontiguousarray(problem.offsets[beams], dtype=float),
         )
 
     def _fix(self, ctx, best_x, best_cost, archive, iterations, generations) -> Fix:

@@ -485,19 +485,22 @@ def _node_cells(grid: Grid, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 _INDEX = numba.types.Array(numba.int64, 1, "C")
-_TRANSLATED_SIGNATURE = numba.float64[:](
-    numba.types.Array(numba.float64, 2, "C", readonly=True),  # the Grid's read-only values
-    _INDEX,
-    _INDEX,
-    numba.types.Array(numba.float64, 1, "C"),
-    _INDEX,
-    _INDEX,
-    numba.float64,
-)
+_TRANSLATED_SIGNATURES = [
+    numba.float64[:](
+        numba.types.Array(dtype, 2, "C", readonly=True),  # the Grid's read-only values
+        _INDEX,
+        _INDEX,
+        numba.types.Array(numba.float64, 1, "C"),
+        _INDEX,
+        _INDEX,
+        numba.float64,
+    )
+    for dtype in (numba.float64, numba.float32)  # float32: a compact shared map
+]
 
 
 # Compiled eagerly (and cached on disk) so that no match call pays for compilation.
-@numba.njit(_TRANSLATED_SIGNATURE, parallel=True, cache=True)
+@numba.njit(_TRANSLATED_SIGNATURES, parallel=True, cache=True)
 def _translated_msd_kernel(
     values, rel_col, rel_row, h, node_col, node_row, needed
 ):  # pragma: no cover

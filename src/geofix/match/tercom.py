@@ -3,7 +3,8 @@
 The indicated track is translated, with its shape kept, to every candidate offset of a
 square window centred on the indicated position; the map is read (bilinear) along every
 candidate and scored against the measured sequence; the best candidate is the fix
-(Golden, Proc. SPIE 238, 1980). Scores, over the ``L`` valid samples (all beams of all points):
+(Baker and Clem, "Terrain contour matching (TERCOM) primer", ASD-TR-77-61, 1977).
+Scores, over the ``L`` valid samples (all beams of all points):
 
 - ``msd`` -- mean squared difference (minimised; the usual default),
 - ``mad`` -- mean absolute difference (minimised),
@@ -21,6 +22,14 @@ when the terrain along it is too flat to tell: the standard deviation of the map
 matched footprints is below ``min_terrain_snr`` times the sensor noise (a surface whose
 relief drowns in the noise, such as a flat sediment plain, makes the pseudo-likelihood
 overconfident: the small INS drift inside the window then picks the minimum).
+
+Computation (:func:`tercom_cost_surface`, all routes give the same surface to rounding):
+with whole-cell candidate spacing the ``loop`` route keeps each sample's four bilinear
+weights fixed and sweeps contiguous map rows (``msd``/``mad`` with branch-and-bound on
+samples ordered by map gradient), the ``fft`` route correlates the map with sparse
+kernels built from the track (``msd``, ``cor``, ``ncor``; not ``mad``); any other spacing
+takes the ``direct`` route. ``route="auto"`` picks the cheaper of the first two by a cost
+model of reads against transform sizes.
 """
 
 from __future__ import annotations
@@ -32,6 +41,18 @@ import numba
 import numpy as np
 
 from geofix.errors import ConfigError, MatchError
+from geofix.maps import mapread
+from geofix.maps.mapread import bilinear_at
+from geofix.match._tercom_fft import SUPPORTED, fft_cost, fft_window
+from geofix.match._tercom_integrity import surface_moments
+from geofix.match._tercom_loop import (
+    MODES,
+    UNDERFLOW_LOG,
+    distance_cost,
+    exact_costs,
+    loop_sums,
+    whole_cell_shifts,
+)
 from geofix.match.integrity import terrain_snr
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import Fix, MatchProblem
@@ -73,9 +94,17 @@ class Tercom:
         ``"all"`` matches every beam of a multibeam swath; ``"nadir"`` only the depth
         profile under the track (the beam nearest nadir), the classic line TERCOM.
 
+    route : str
+        How the cost surface is computed (:func:`tercom_cost_surface`): ``"auto"`` (the
+        faster of ``"loop"`` and ``"fft"`` where they apply, else ``"direct"``) or one of
+        them. On the loop route the ``msd``/``mad`` surfaces use branch-and-bound, which
+        leaves the fix and its integrity analysis unchanged.
+
     References
     ----------
-    .. [1] Golden, J. P. (1980). Terrain contour matching (TERCOM): a cruise missile
+    .. [1] Baker, W. R., & Clem, R. W. (1977). Terrain contour matching (TERCOM) primer.
+       ASD-TR-77-61, Aeronautical Systems Division, Wright-Patterson AFB.
+    .. [2] Golden, J. P. (1980). Terrain contour matching (TERCOM): a cruise missile
        guidance aid. Proc. SPIE 238, Image Processing for Missile Guidance, 10-18.
 
     Examples
@@ -101,6 +130,7 @@ class Tercom:
     ambiguity_mass: float = 0.05
     min_terrain_snr: float = 1.0
     beams: str = "all"
+    route: str = "auto"
 
     def __post_init__(self) -> None:
         if self.metric not in _METRICS:
@@ -111,20 +141,27 @@ class Tercom:
             raise ConfigError("tercom: step_cells and window_sigma must be positive")
         if self.beams not in ("all", "nadir"):
             raise ConfigError(f"tercom: beams must be 'all' or 'nadir', got {self.beams!r}")
+        if self.route not in ROUTES:
+            raise ConfigError(f"tercom: route must be one of {ROUTES}, got {self.route!r}")
 
     def match(self, problem: MatchProblem, rng: np.random.Generator | None = None) -> Fix:
         """Search the window and return the best translation of the indicated track."""
         if self.beams == "nadir":
             problem = problem.nadir()
         ox, oy = self.candidate_offsets(problem)
-        cost = tercom_cost_surface(problem, ox, oy, self.metric, self.min_valid_fraction)
+        margin = self._prune_margin(problem)
+        cost, route = _surface(
+            problem, ox, oy, self.metric, self.min_valid_fraction, self.route, margin
+        )
         if not np.isfinite(cost).any():
             raise MatchError("tercom: no candidate in the search window lies on valid map data")
         j, k = np.unravel_index(np.nanargmin(cost), cost.shape)
         offset = np.array([ox[k], oy[j]])
         surface = cost
         if self.metric in ("cor", "ncor"):
-            surface = tercom_cost_surface(problem, ox, oy, "msd", self.min_valid_fraction)
+            surface = _surface(problem, ox, oy, "msd", self.min_valid_fraction, self.route, margin)[
+                0
+            ]
         covariance, ambiguous = self._integrity(problem, surface, ox, oy, (j, k))
         track = problem.indicated + offset
         snr = terrain_snr(problem, track)
@@ -134,7 +171,12 @@ class Tercom:
             cost=float(cost[j, k]),
             evaluations=int(cost.size * np.isfinite(problem.measured).sum()),
             ambiguous=ambiguous or bool(snr < self.min_terrain_snr),
-            diagnostics={"offset": offset, "candidates": int(cost.size), "terrain_snr": snr},
+            diagnostics={
+                "offset": offset,
+                "candidates": int(cost.size),
+                "terrain_snr": snr,
+                "route": route,
+            },
         )
 
     def candidate_offsets(self, problem: MatchProblem) -> tuple[np.ndarray, np.ndarray]:
@@ -162,18 +204,76 @@ class Tercom:
         oy = np.arange(-ny, ny + 1) * self.step_cells * grid.dy
         return ox, oy
 
+    def _prune_margin(self, problem: MatchProblem):
+        """Cost gap beyond which a candidate's pseudo-likelihood weight is exactly zero.
+
+        The weight is ``exp(-L (cost - best) / scale)`` (:meth:`_integrity`);
+        with ``scale`` evaluated at an upper bound of the best cost the gap is
+        conservative, so pruning such candidates changes neither fix nor integrity.
+        """
+        samples = int(np.isfinite(problem.measured).sum())
+        kind = "mad" if self.metric == "mad" else "msd"
+        return lambda best: UNDERFLOW_LOG * _likelihood_scale(kind, problem, best) / samples
+
     def _integrity(self, problem, msd, ox, oy, best) -> tuple[np.ndarray, bool]:
-        """Covariance of the offset and the ambiguity flag from an msd/mad surface."""
-        weights = _pseudo_likelihood(msd, "mad" if self.metric == "mad" else "msd", problem)
-        dx, dy = np.meshgrid(ox - ox[best[1]], oy - oy[best[0]])
+        """Covariance of the offset and the ambiguity flag from an msd/mad surface.
+
+        The pseudo-likelihood ``exp(-L (cost - min) / scale)`` (Gaussian scale for
+        ``msd``, Laplace for ``mad``) is normalised over the window; its weighted spread
+        plus the cell's quantisation variance is the covariance, its mass beyond
+        ``exclusion_cells`` from the best candidate the ambiguity test.
+        """
+        kind = "mad" if self.metric == "mad" else "msd"
+        samples = int(np.isfinite(problem.measured).sum())
+        low = float(np.nanmin(msd))
+        factor = samples / _likelihood_scale(kind, problem, low)
         cell = problem.grid.cell_size
-        far = np.hypot(dx, dy) > self.exclusion_cells * cell
-        mx, my = (weights * dx).sum(), (weights * dy).sum()
-        cxx = (weights * (dx - mx) ** 2).sum() + cell**2 / 12
-        cyy = (weights * (dy - my) ** 2).sum() + cell**2 / 12
-        cxy = (weights * (dx - mx) * (dy - my)).sum()
-        covariance = np.array([[cxx, cxy], [cxy, cyy]])
-        return covariance, bool(weights[far].sum() > self.ambiguity_mass)
+        _, _, cxx, cyy, cxy, far = surface_moments(
+            np.ascontiguousarray(msd, dtype=float),
+            low,
+            factor,
+            np.ascontiguousarray(ox, dtype=float),
+            np.ascontiguousarray(oy, dtype=float),
+            int(best[0]),
+            int(best[1]),
+            self.exclusion_cells * cell,
+        )
+        quantisation = cell**2 / 12
+        covariance = np.array([[cxx + quantisation, cxy], [cxy, cyy + quantisation]])
+        return covariance, bool(far > self.ambiguity_mass)
+
+
+ROUTES = ("auto", "loop", "fft", "direct")
+
+# Rough per-operation costs on one core (seconds), measured by benchmarks/bench_tercom.py,
+# used only to pick a route: the loop per sample x candidate, the FFT per transform point
+# and log2 of the transform size.
+_LOOP_S_PER_READ = 0.5e-9
+_FFT_S_PER_POINT_LOG = 1.0e-9
+_FFT_TRANSFORMS = {"msd": 13, "cor": 3, "ncor": 15}
+
+
+@dataclass(frozen=True)
+class _Samples:
+    """The kept samples of a problem in fractional map cells, and their measurements."""
+
+    col: np.ndarray
+    row: np.ndarray
+    h: np.ndarray
+
+
+def _samples(problem: MatchProblem) -> _Samples:
+    fx, fy = problem.footprint(problem.indicated)
+    measured = problem.measured.reshape(-1)
+    keep = np.isfinite(measured) & np.isfinite(fx.reshape(-1)) & np.isfinite(fy.reshape(-1))
+    if not keep.any():
+        raise MatchError("tercom: every measured value is missing")
+    grid = problem.grid
+    col = (fx.reshape(-1)[keep] - grid.x0) / grid.dx
+    row = (fy.reshape(-1)[keep] - grid.y0) / grid.dy
+    return _Samples(
+        np.ascontiguousarray(col), np.ascontiguousarray(row), np.ascontiguousarray(measured[keep])
+    )
 
 
 def tercom_cost_surface(
@@ -182,6 +282,8 @@ def tercom_cost_surface(
     oy: np.ndarray,
     metric: str = "msd",
     min_valid_fraction: float = 0.9,
+    route: str = "auto",
+    prune_margin=None,
 ) -> np.ndarray:
     """Cost of every translated candidate of the indicated track.
 
@@ -190,51 +292,145 @@ def tercom_cost_surface(
     problem : MatchProblem
         Map, indicated track, heading, beam offsets, measurements.
     ox, oy : numpy.ndarray
-        Candidate translations along x (east) and y (north), metres.
+        Candidate translations along x (east) and y (north), metres, increasing and
+        evenly spaced.
     metric : str
         ``"msd"``, ``"mad"``, ``"cor"`` or ``"ncor"``; maximised metrics are negated.
     min_valid_fraction : float
         Candidates with fewer valid map look-ups than this share are set to NaN.
+    route : str
+        ``"loop"`` (compiled loop with per-sample weights, whole-cell shifts:
+        :mod:`geofix.match._tercom_loop`), ``"fft"`` (FFT correlation, whole-cell shifts,
+        window on finite map data, not ``mad``: :mod:`geofix.match._tercom_fft`),
+        ``"direct"`` (one bilinear read per sample and candidate, any shifts) or
+        ``"auto"``: the fastest applicable by a cost model of the first two.
+    prune_margin : callable, optional
+        ``margin(best_cost)`` for branch-and-bound (``msd``/``mad`` on the loop route):
+        candidates proven costlier than the best by more than the margin come out
+        ``+inf`` instead of their cost.
 
     Returns
     -------
     numpy.ndarray
         ``(len(oy), len(ox))`` costs (lower is better), NaN for discarded candidates.
+
+    Raises
+    ------
+    ConfigError
+        An unknown route, or one that does not apply to the candidates or metric.
     """
-    fx, fy = problem.footprint(problem.indicated)
-    measured = problem.measured.reshape(-1)
-    keep = np.isfinite(measured) & np.isfinite(fx.reshape(-1))
-    if not keep.any():
-        raise MatchError("tercom: every measured value is missing")
+    return _surface(problem, ox, oy, metric, min_valid_fraction, route, prune_margin)[0]
+
+
+def _surface(problem, ox, oy, metric, min_valid_fraction, route, prune_margin):
+    """Cost surface and the route that computed it."""
+    if route not in ROUTES:
+        raise ConfigError(f"tercom: route must be one of {ROUTES}, got {route!r}")
+    samples = _samples(problem)
     grid = problem.grid
-    col = (fx.reshape(-1)[keep] - grid.x0) / grid.dx
-    row = (fy.reshape(-1)[keep] - grid.y0) / grid.dy
     values = np.ascontiguousarray(grid.values)
+    ocol = np.asarray(ox, dtype=float) / grid.dx
+    orow = np.asarray(oy, dtype=float) / grid.dy
+    kc, kr = whole_cell_shifts(ocol), whole_cell_shifts(orow)
+    whole = kc is not None and kr is not None
+    if route in ("loop", "fft") and not whole:
+        raise ConfigError(f"tercom: route {route!r} needs whole-cell, evenly spaced offsets")
+    if route == "direct" or not whole:
+        return _direct(values, samples, ocol, orow, metric, min_valid_fraction), "direct"
+    if route in ("auto", "fft") and metric in SUPPORTED:
+        window = fft_window(values.shape, samples.col, samples.row, kc, kr)
+        if window is not None and (
+            route == "fft" or _fft_is_faster(samples, kc, kr, window, metric)
+        ):
+            cost = fft_cost(values, window, samples.h, kc, kr, metric, numba.get_num_threads())
+            if cost is not None:
+                return cost, "fft"
+    if route == "fft":
+        raise ConfigError("tercom: route 'fft' needs a window on finite map data and not 'mad'")
+    return _loop(values, samples, kc, kr, metric, min_valid_fraction, prune_margin), "loop"
+
+
+def _fft_is_faster(samples, kc, kr, window, metric) -> bool:
+    """Cost model: the loop's reads against the FFT's transforms of the window."""
+    r_lo, r_hi, c_lo, c_hi = window[:4]
+    points = float((r_hi - r_lo) * (c_hi - c_lo))
+    fft_s = _FFT_TRANSFORMS[metric] * points * np.log2(points) * _FFT_S_PER_POINT_LOG
+    loop_s = samples.h.size * kc.size * kr.size * _LOOP_S_PER_READ
+    return fft_s < loop_s
+
+
+def _loop(values, samples, kc, kr, metric, min_valid_fraction, prune_margin) -> np.ndarray:
+    mode = MODES[metric]
+    n = samples.h.size
+    h = samples.h - samples.h.mean() if metric == "ncor" else samples.h
+    prune = None
+    if prune_margin is not None and metric in ("msd", "mad"):
+        order = _information_order(values, samples)
+
+        need = float(min_valid_fraction) * n
+
+        def exact(j, k):
+            cost = exact_costs(
+                values,
+                samples.col,
+                samples.row,
+                samples.h,
+                kc[k : k + 1],
+                kr[j : j + 1],
+                mode,
+                need,
+            )[0]
+            return float(cost) if np.isfinite(cost) else np.inf
+
+        prune = (order, exact, prune_margin)
+    sums, count, alive = loop_sums(values, samples.col, samples.row, h, kc, kr, mode, prune)
+    if mode in (0, 1):
+        return distance_cost(sums[0], count, alive, float(min_valid_fraction) * n)
+    cost = _finish(sums, count, n, mode, min_valid_fraction)
+    cost[~alive] = np.inf
+    return cost
+
+
+def _information_order(values, samples) -> np.ndarray:
+    """Samples by decreasing squared map gradient at the indicated footprint."""
+    _, gx, gy = mapread.gradient_xy(values, 0.0, 0.0, 1.0, 1.0, samples.col, samples.row)
+    return np.argsort(-np.nan_to_num(gx * gx + gy * gy, nan=0.0), kind="stable")
+
+
+def _finish(sums, count, n, mode, min_valid_fraction) -> np.ndarray:
+    """Cost from the loop's sums; NaN where too few samples were valid."""
+    valid = count.astype(float)
+    bad = (count < min_valid_fraction * n) | (count == 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if mode in (0, 1):
+            cost = sums[0] / valid
+        elif mode == 2:
+            cost = -sums[0] / valid
+        else:
+            s_m, s_mm, s_hm, s_h, s_hh = sums
+            var_m = s_mm - s_m * s_m / valid
+            denom = np.sqrt(np.maximum(var_m, 1e-300) * np.maximum(s_hh, 1e-300))
+            cost = -(s_hm - s_h * s_m / valid) / denom
+    cost[bad] = np.nan
+    return cost
+
+
+def _direct(values, samples, ocol, orow, metric, min_valid_fraction) -> np.ndarray:
     return _cost_kernel(
         values,
-        np.ascontiguousarray(col),
-        np.ascontiguousarray(row),
-        np.ascontiguousarray(measured[keep]),
-        np.ascontiguousarray(ox, dtype=float) / grid.dx,
-        np.ascontiguousarray(oy, dtype=float) / grid.dy,
+        samples.col,
+        samples.row,
+        samples.h,
+        np.ascontiguousarray(ocol, dtype=float),
+        np.ascontiguousarray(orow, dtype=float),
         _METRICS[metric],
         float(min_valid_fraction),
     )
 
 
-_VEC = numba.types.Array(numba.float64, 1, "C")
-_KERNEL_SIGNATURE = numba.float64[:, :](
-    numba.types.Array(numba.float64, 2, "C", readonly=True),  # the Grid's read-only values
-    *(_VEC,) * 5,
-    numba.int64,
-    numba.float64,
-)
-
-
-# Compiled eagerly (and cached on disk) so that no match call pays for compilation.
-@numba.njit(_KERNEL_SIGNATURE, parallel=True, cache=True)
+@numba.njit(parallel=True, cache=True)
 def _cost_kernel(values, col, row, h, ocol, orow, metric, min_valid_fraction):  # pragma: no cover
-    ny, nx = values.shape
+    """The direct route: one compiled bilinear read per sample and candidate."""
     n = h.shape[0]
     out = np.full((orow.shape[0], ocol.shape[0]), np.nan)
     hmean = h.mean()
@@ -248,17 +444,7 @@ def _cost_kernel(values, col, row, h, ocol, orow, metric, min_valid_fraction):  
             s_hh = 0.0
             valid = 0
             for i in range(n):
-                c = col[i] + ocol[k]
-                r = row[i] + orow[j]
-                if c < 0.0 or r < 0.0 or c > nx - 1 or r > ny - 1:
-                    continue
-                c0 = min(int(c), nx - 2)
-                r0 = min(int(r), ny - 2)
-                fc = c - c0
-                fr = r - r0
-                m = (values[r0, c0] * (1 - fc) + values[r0, c0 + 1] * fc) * (1 - fr) + (
-                    values[r0 + 1, c0] * (1 - fc) + values[r0 + 1, c0 + 1] * fc
-                ) * fr
+                m = bilinear_at(values, col[i] + ocol[k], row[i] + orow[j])
                 if m != m:
                     continue
                 valid += 1
@@ -287,14 +473,8 @@ def _cost_kernel(values, col, row, h, ocol, orow, metric, min_valid_fraction):  
     return out
 
 
-def _pseudo_likelihood(cost: np.ndarray, metric: str, problem: MatchProblem):
-    """Normalised weights ``exp(-L * (cost - min) / scale)`` of an msd or mad surface."""
-    samples = int(np.isfinite(problem.measured).sum())
-    best = float(np.nanmin(cost))
+def _likelihood_scale(metric: str, problem: MatchProblem, best: float) -> float:
+    """Scale of the pseudo-likelihood: Gaussian (``msd``) or Laplace (``mad``)."""
     if metric == "msd":
-        scale = 2.0 * max(problem.noise_std**2, best, 1e-12)
-    else:
-        scale = max(problem.noise_std / np.sqrt(2.0), best, 1e-12)
-    logw = -samples * (np.nan_to_num(cost, nan=np.inf) - best) / scale
-    w = np.exp(logw)
-    return w / w.sum()
+        return 2.0 * max(problem.noise_std**2, best, 1e-12)
+    return max(problem.noise_std / np.sqrt(2.0), best, 1e-12)

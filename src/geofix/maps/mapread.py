@@ -1,0 +1,214 @@
+"""The one compiled map read: bilinear (value and gradient) and nearest-node look-ups.
+
+Every reader of a :class:`~geofix.maps.grid.Grid` -- ``Grid.sample``, the sensors, the
+matchers, the filters' measurement model -- goes through these numba kernels, so the
+map is interpolated one way everywhere. Conventions (those of ``Grid.sample``):
+
+- positions are metric; the fractional cell of ``x`` is ``col = (x - x0) / dx`` (rows
+  likewise), cell ``[0, 0]`` centred on ``(x0, y0)``;
+- **bilinear** reads the four cell centres around ``(col, row)``; a position outside
+  ``0 <= col <= nx - 1``, ``0 <= row <= ny - 1`` (or a NaN position) reads NaN, and so does
+  one whose stencil holds a NaN (no-data) cell. On the last column/row the stencil is the
+  last pair of cells (weight 1 on the edge cell);
+- the **gradient** is that of the bilinear interpolant inside the stencil cell, field
+  units per metre: ``d/dx = ((v01 - v00) (1 - fr) + (v11 - v10) fr) / dx`` and
+  ``d/dy = ((v10 - v00) (1 - fc) + (v11 - v01) fc) / dy`` (one-sided at cell edges, like
+  the interpolant itself);
+- **nearest** rounds ``col`` and ``row`` half-to-even (``numpy.rint``) and reads NaN
+  outside the grid.
+
+The scalar kernels :func:`bilinear_at`, :func:`stencil` and :func:`nearest_at` are
+numba functions that other compiled kernels (TERCOM, IOAP) call inline. Values may be
+float64 or float32 (a float32 map is read and interpolated in float64).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_JIT = {"cache": True, "nogil": True}
+
+
+# ----------------------------------------------------------------------------- scalar kernels
+@numba.njit(**_JIT)
+def stencil(c, r, nx, ny):  # pragma: no cover - compiled
+    """``(inside, c0, r0, fc, fr)`` of the bilinear stencil at fractional cell ``(c, r)``."""
+    if not (c >= 0.0 and r >= 0.0 and c <= nx - 1 and r <= ny - 1):
+        return False, 0, 0, 0.0, 0.0
+    c0 = min(int(c), nx - 2)
+    r0 = min(int(r), ny - 2)
+    return True, c0, r0, c - c0, r - r0
+
+
+@numba.njit(**_JIT)
+def combine(values, c0, r0, fc, fr):  # pragma: no cover - compiled
+    """Bilinear combination of the stencil at ``values[r0:r0+2, c0:c0+2]``."""
+    return (values[r0, c0] * (1 - fc) + values[r0, c0 + 1] * fc) * (1 - fr) + (
+        values[r0 + 1, c0] * (1 - fc) + values[r0 + 1, c0 + 1] * fc
+    ) * fr
+
+
+@numba.njit(**_JIT)
+def bilinear_at(values, c, r):  # pragma: no cover - compiled
+    """Bilinear value at fractional cell ``(c, r)``; NaN off the grid or on no-data."""
+    ny, nx = values.shape
+    inside, c0, r0, fc, fr = stencil(c, r, nx, ny)
+    if not inside:
+        return np.nan
+    return combine(values, c0, r0, fc, fr)
+
+
+@numba.njit(**_JIT)
+def nearest_at(values, c, r):  # pragma: no cover - compiled
+    """Value of the node nearest to ``(c, r)`` (half-to-even); NaN off the grid."""
+    ny, nx = values.shape
+    ic = np.rint(c)
+    ir = np.rint(r)
+    if not (ic >= 0.0 and ir >= 0.0 and ic <= nx - 1 and ir <= ny - 1):
+        return np.nan
+    return values[int(ir), int(ic)] * 1.0
+
+
+# ----------------------------------------------------------------------------- array kernels
+@numba.njit(**_JIT)
+def _bilinear_xy(values, x0, y0, dx, dy, x, y, out):  # pragma: no cover - compiled
+    for i in range(x.shape[0]):
+        out[i] = bilinear_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
+
+
+@numba.njit(**_JIT)
+def _nearest_xy(values, x0, y0, dx, dy, x, y, out):  # pragma: no cover - compiled
+    for i in range(x.shape[0]):
+        out[i] = nearest_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
+
+
+@numba.njit(**_JIT)
+def _gradient_xy(values, x0, y0, dx, dy, x, y, out, gx, gy):  # pragma: no cover - compiled
+    ny, nx = values.shape
+    for i in range(x.shape[0]):
+        inside, c0, r0, fc, fr = stencil((x[i] - x0) / dx, (y[i] - y0) / dy, nx, ny)
+        if not inside:
+            out[i] = gx[i] = gy[i] = np.nan
+            continue
+        v00 = values[r0, c0] * 1.0
+        v01 = values[r0, c0 + 1] * 1.0
+        v10 = values[r0 + 1, c0] * 1.0
+        v11 = values[r0 + 1, c0 + 1] * 1.0
+        out[i] = (v00 * (1 - fc) + v01 * fc) * (1 - fr) + (v10 * (1 - fc) + v11 * fc) * fr
+        gx[i] = ((v01 - v00) * (1 - fr) + (v11 - v10) * fr) / dx
+        gy[i] = ((v10 - v00) * (1 - fc) + (v11 - v01) * fc) / dy
+
+
+@numba.njit(**_JIT)
+def _bilinear_cells(values, col, row, out):  # pragma: no cover - compiled
+    for i in range(col.shape[0]):
+        out[i] = bilinear_at(values, col[i], row[i])
+
+
+@numba.njit(**_JIT)
+def _bilinear_beams(values, col, row, bcol, brow, out):  # pragma: no cover - compiled
+    for i in range(col.shape[0]):
+        for b in range(bcol.shape[0]):
+            out[i, b] = bilinear_at(values, col[i] + bcol[b], row[i] + brow[b])
+
+
+# ----------------------------------------------------------------------------- numpy façade
+def _flat(a) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(-1))
+
+
+def _map_values(values: np.ndarray) -> np.ndarray:
+    values = np.asarray(values)
+    if values.dtype not in (np.float32, np.float64):
+        values = values.astype(np.float64)
+    return np.ascontiguousarray(values)
+
+
+def read_xy(values, x0, y0, dx, dy, x, y, method: str = "bilinear") -> np.ndarray:
+    """Field values at metric positions (see the module docstring for the conventions).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(ny, nx)`` map values (float64 or float32), NaN = no data.
+    x0, y0, dx, dy : float
+        Centre of cell ``[0, 0]`` and cell size, metres.
+    x, y : array_like
+        Eastings and northings, metres; broadcastable shapes.
+    method : {"bilinear", "nearest"}
+        Interpolation.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 values of the broadcast shape of ``x`` and ``y``.
+    """
+    kernel = {"bilinear": _bilinear_xy, "nearest": _nearest_xy}.get(method)
+    if kernel is None:
+        raise ValueError(f"unknown sampling method {method!r}; use 'bilinear' or 'nearest'")
+    x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+    out = np.empty(x.size)
+    kernel(_map_values(values), float(x0), float(y0), float(dx), float(dy), _flat(x), _flat(y), out)
+    return out.reshape(x.shape)
+
+
+def gradient_xy(values, x0, y0, dx, dy, x, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Bilinear value and its gradient at metric positions.
+
+    Parameters are those of :func:`read_xy`.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(value, d value / dx, d value / dy)``: field units and field units per metre,
+        broadcast shape of ``x`` and ``y``; all NaN where the value is NaN off the grid
+        (a NaN stencil cell makes all three NaN as well).
+    """
+    x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+    out, gx, gy = np.empty(x.size), np.empty(x.size), np.empty(x.size)
+    _gradient_xy(
+        _map_values(values),
+        float(x0),
+        float(y0),
+        float(dx),
+        float(dy),
+        _flat(x),
+        _flat(y),
+        out,
+        gx,
+        gy,
+    )
+    return out.reshape(x.shape), gx.reshape(x.shape), gy.reshape(x.shape)
+
+
+def bilinear_cells(values, col, row) -> np.ndarray:
+    """Bilinear values at fractional cell indices ``(col, row)`` (broadcastable shapes)."""
+    col, row = np.broadcast_arrays(np.asarray(col, dtype=float), np.asarray(row, dtype=float))
+    out = np.empty(col.size)
+    _bilinear_cells(_map_values(values), _flat(col), _flat(row), out)
+    return out.reshape(col.shape)
+
+
+def bilinear_beams(values, col, row, beam_col, beam_row) -> np.ndarray:
+    """Bilinear values at every hypothesis ``(col, row)`` plus every beam offset.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(ny, nx)`` map values.
+    col, row : numpy.ndarray
+        ``(k,)`` fractional cells of the hypotheses.
+    beam_col, beam_row : numpy.ndarray
+        ``(b,)`` beam offsets in cells.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(k, b)`` values read at ``(col + beam_col, row + beam_row)``.
+    """
+    col, row = _flat(col), _flat(row)
+    bcol, brow = _flat(beam_col), _flat(beam_row)
+    out = np.empty((col.size, bcol.size))
+    _bilinear_beams(_map_values(values), col, row, bcol, brow, out)
+    return out

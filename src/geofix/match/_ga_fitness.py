@@ -1,0 +1,215 @@
+"""Compiled GA-SCA fitness: transform, footprint, map read and the three costs in one pass.
+
+For each individual ``(t_x, t_y, alpha, theta)`` the indicated track is transformed
+(``p' = p_0 + alpha R(theta) (p - p_0) + t``), each chosen beam's footprint is placed
+with the heading ``psi - theta``, the map is read with the shared compiled bilinear read
+(:func:`geofix.maps.mapread.bilinear_at`), and the absolute differences to the measured
+depths are reduced to the GA cost (new fitness, eq. 8 of source 000, or the plain sum),
+the SCA cost (eq. 9) and the mean absolute difference -- without the ``(P, n, s)``
+temporaries of the numpy formulation, which :meth:`GaSca._evaluate_numpy` keeps as the
+reference.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from geofix.maps.mapread import bilinear_at
+
+
+@numba.njit(cache=True)
+def ga_costs(
+    values,
+    geometry,
+    indicated,
+    sin_heading,
+    cos_heading,
+    pivot,
+    offsets,
+    params,
+    measured,
+    decay,
+    weights,
+    new_fitness,
+    min_valid_fraction,
+    n_valid,
+):  # pragma: no cover - compiled
+    """``(ga, sca, mad)`` costs of every individual, ``inf`` for discarded ones.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(ny, nx)`` map.
+    geometry : numpy.ndarray
+        ``(4,)`` ``x0, y0, dx, dy`` of the map, metres.
+    indicated : numpy.ndarray
+        ``(n, 2)`` indicated track, metres.
+    sin_heading, cos_heading : numpy.ndarray
+        ``(n,)`` sine and cosine of the indicated heading (clockwise from north); the
+        heading ``psi - theta`` of a rotated track is formed by the angle-difference
+        identities, so no trigonometric call is made per sample.
+    pivot : numpy.ndarray
+        ``(2,)`` pivot of rotation and scale, metres.
+    offsets : numpy.ndarray
+        ``(s, 2)`` body-frame offsets of the chosen beams, metres.
+    params : numpy.ndarray
+        ``(P, 4)`` individuals.
+    measured : numpy.ndarray
+        ``(n, s)`` measured depths of the chosen beams (NaN = missing).
+    decay, weights : numpy.ndarray
+        ``(n,)`` ``lambda^j`` and ``(s,)`` sequence weights.
+    new_fitness : bool
+        Eq. 8 (True) or the plain summed absolute difference (False).
+    min_valid_fraction : float
+        Share of valid look-ups below which an individual is discarded.
+    n_valid : int
+        Number of finite measured values.
+    """
+    x0, y0, dx, dy = geometry[0], geometry[1], geometry[2], geometry[3]
+    n, s = measured.shape
+    pop = params.shape[0]
+    ga = np.empty(pop)
+    sca = np.empty(pop)
+    mad = np.empty(pop)
+    seq = np.empty(s)
+    dmax = np.empty(s)
+    count = np.empty(s, dtype=np.int64)
+    for p in range(pop):
+        tx, ty, alpha, theta = params[p, 0], params[p, 1], params[p, 2], params[p, 3]
+        c, sn = np.cos(theta), np.sin(theta)
+        seq[:] = 0.0
+        dmax[:] = 0.0
+        count[:] = 0
+        total = 0.0
+        for i in range(n):
+            rx, ry = indicated[i, 0] - pivot[0], indicated[i, 1] - pivot[1]
+            px = pivot[0] + alpha * (c * rx - sn * ry) + tx
+            py = pivot[1] + alpha * (sn * rx + c * ry) + ty
+            ss = sin_heading[i] * c - cos_heading[i] * sn  # sin(psi - theta)
+            cs = cos_heading[i] * c + sin_heading[i] * sn  # cos(psi - theta)
+            for b in range(s):
+                h = measured[i, b]
+                if h != h:
+                    continue
+                across, along = offsets[b, 0], offsets[b, 1]
+                fx = px + across * cs + along * ss
+                fy = py - across * ss + along * cs
+                d = abs(bilinear_at(values, (fx - x0) / dx, (fy - y0) / dy) - h)
+                if d != d:
+                    continue
+                count[b] += 1
+                seq[b] += d * decay[i]
+                total += d
+                if d > dmax[b]:
+                    dmax[b] = d
+        valid = count.sum()
+        bad = valid < min_valid_fraction * n_valid
+        for b in range(s):
+            bad = bad or count[b] == 0
+        if bad:
+            ga[p] = sca[p] = mad[p] = np.inf
+            continue
+        sca_p = 0.0
+        ga_p = 0.0
+        for b in range(s):
+            sca_p += dmax[b] * weights[b]
+            ga_p += seq[b] / count[b] * weights[b]
+        ga[p] = ga_p if new_fitness else total * n_valid / valid
+        sca[p] = sca_p
+        mad[p] = total / valid
+    return ga, sca, mad
+
+
+@numba.njit(cache=True)
+def _inside(x, lower, upper):  # pragma: no cover - compiled
+    """``(P,)`` True where every parameter of an individual lies inside the box."""
+    out = np.ones(x.shape[0], dtype=np.bool_)
+    for p in range(x.shape[0]):
+        for g in range(x.shape[1]):
+            if x[p, g] < lower[g] or x[p, g] > upper[g]:
+                out[p] = False
+    return out
+
+
+@numba.njit(cache=True)
+def sca_refine(
+    rng, elite, half, lower, upper, population, iterations, a, fitness
+):  # pragma: no cover - compiled
+    """Sine-cosine refinement of the elite (Mirjalili 2016), compiled end to end.
+
+    The same steps, random draws (same order and shapes) and selection as the numpy
+    formulation in :meth:`GaSca._sca_numpy`; ``fitness`` is the tuple of the remaining
+    arguments of :func:`ga_costs` after ``params``, split as ``(head, tail)``.
+
+    Returns
+    -------
+    tuple
+        ``(new_elite, its GA cost, final SCA population inside the box, their GA costs)``.
+    """
+    head, tail = fitness
+    z = rng.uniform(-1.0, 1.0, (population, 4))
+    z[0] = 0.0
+    x = elite + z * half
+    cost, sca_cost, _ = ga_costs(*head, x, *tail)
+    best = int(np.argmin(sca_cost))
+    p, p_cost, p_ga = z[best].copy(), sca_cost[best], cost[best]
+    for t in range(iterations):
+        r1 = a * (1.0 - t / iterations)
+        r2 = rng.uniform(0.0, 2 * np.pi, z.shape)
+        r3 = rng.uniform(0.0, 2.0, z.shape)
+        wave = np.where(rng.random(z.shape) < 0.5, np.sin(r2), np.cos(r2))
+        z = np.clip(z + r1 * wave * np.abs(r3 * p - z), -1.0, 1.0)
+        x = elite + z * half
+        cost, sca_cost, _ = ga_costs(*head, x, *tail)
+        k = int(np.argmin(sca_cost))
+        if sca_cost[k] < p_cost:
+            p, p_cost, p_ga = z[k].copy(), sca_cost[k], cost[k]
+    inside = _inside(x, lower, upper)
+    new_elite = elite + p * half
+    if not _inside(new_elite.reshape(1, 4), lower, upper)[0]:
+        new_elite = np.minimum(np.maximum(new_elite, lower), upper)
+        p_ga = ga_costs(*head, new_elite.reshape(1, 4), *tail)[0][0]
+    return new_elite, p_ga, x[inside], cost[inside]
+
+
+@numba.njit(cache=True)
+def _clip_box(x, lower, upper):  # pragma: no cover - compiled
+    for p in range(x.shape[0]):
+        for g in range(x.shape[1]):
+            x[p, g] = min(max(x[p, g], lower[g]), upper[g])
+    return x
+
+
+@numba.njit(cache=True)
+def ga_offspring(
+    rng, pool, pool_cost, population, crossover_rate, mutation_rate, mutation_scale, lower, upper
+):  # pragma: no cover - compiled
+    """Tournament selection, BLX-0.25 crossover and Gaussian mutation, compiled.
+
+    The same random draws, in the same order and shapes, as the numpy operators of
+    :class:`GaSca` (``_tournament``, ``_crossover``, ``_mutate``); returns the
+    ``population - 1`` children.
+    """
+    count = 2 * (population // 2)
+    a = rng.integers(0, pool_cost.shape[0], count)
+    b = rng.integers(0, pool_cost.shape[0], count)
+    parents = np.empty((count, 4))
+    for q in range(count):
+        parents[q] = pool[a[q]] if pool_cost[a[q]] <= pool_cost[b[q]] else pool[b[q]]
+    first, second = parents[0::2], parents[1::2]
+    pairs = first.shape[0]
+    beta = rng.uniform(-0.25, 1.25, (pairs, 4))
+    cross = rng.random(pairs) < crossover_rate
+    for q in range(pairs):
+        if not cross[q]:
+            beta[q] = 1.0
+    kids = np.empty((2 * pairs, 4))
+    kids[:pairs] = beta * first + (1 - beta) * second
+    kids[pairs:] = (1 - beta) * first + beta * second
+    kids = _clip_box(kids, lower, upper)
+    half = 0.5 * (upper - lower)
+    hit = rng.random(kids.shape) < mutation_rate
+    step = rng.standard_normal(kids.shape) * mutation_scale * half
+    kids = _clip_box(kids + hit * step, lower, upper)
+    return kids[: population - 1].copy()

@@ -1,0 +1,146 @@
+"""The compiled map read against a plain-numpy reference of the former ``Grid.sample``."""
+
+import numpy as np
+import pytest
+
+from geofix.maps import mapread
+from geofix.maps.grid import Grid
+
+
+def _numpy_bilinear(values, col, row):
+    """Reference: the numpy bilinear read ``Grid.sample`` used before the compiled one."""
+    col, row = np.broadcast_arrays(np.asarray(col, float), np.asarray(row, float))
+    ny, nx = values.shape
+    inside = (col >= 0) & (col <= nx - 1) & (row >= 0) & (row <= ny - 1)
+    c = np.where(inside, col, 0.0)
+    r = np.where(inside, row, 0.0)
+    c0 = np.minimum(np.floor(c).astype(np.intp), nx - 2)
+    r0 = np.minimum(np.floor(r).astype(np.intp), ny - 2)
+    fc, fr = c - c0, r - r0
+    v00, v01 = values[r0, c0], values[r0, c0 + 1]
+    v10, v11 = values[r0 + 1, c0], values[r0 + 1, c0 + 1]
+    out = (v00 * (1 - fc) + v01 * fc) * (1 - fr) + (v10 * (1 - fc) + v11 * fc) * fr
+    return np.where(inside, out, np.nan)
+
+
+def _numpy_nearest(values, col, row):
+    """Reference: the numpy nearest-node read."""
+    col, row = np.broadcast_arrays(np.asarray(col, float), np.asarray(row, float))
+    ny, nx = values.shape
+    ic, ir = np.rint(col), np.rint(row)
+    inside = (ic >= 0) & (ic <= nx - 1) & (ir >= 0) & (ir <= ny - 1)
+    ic = np.where(inside, ic, 0).astype(np.intp)
+    ir = np.where(inside, ir, 0).astype(np.intp)
+    return np.where(inside, values[ir, ic], np.nan)
+
+
+@pytest.fixture(scope="module")
+def grid():
+    rng = np.random.default_rng(11)
+    values = rng.normal(-100.0, 5.0, (37, 53))
+    values[5, 7] = np.nan  # a no-data cell
+    values[20:23, 40:42] = np.nan
+    return Grid(values, x0=1000.0, y0=-500.0, dx=10.0, dy=12.5)
+
+
+def _positions(grid, rng, n=4000):
+    """Random positions on and around the map, plus exact nodes, edges and NaNs."""
+    west, east, south, north = grid.extent
+    x = rng.uniform(west - 30.0, east + 30.0, n)
+    y = rng.uniform(south - 30.0, north + 30.0, n)
+    # exact nodes, the last column/row, half-cells (rounding ties) and NaN positions
+    nodes_x = grid.x0 + grid.dx * np.array([0, 1, 52, 52, 0, 26.5, 3.5, 52])
+    nodes_y = grid.y0 + grid.dy * np.array([0, 36, 0, 36, 17.5, 2.5, 36, 4])
+    x = np.concatenate([x, nodes_x, [np.nan, 1100.0]])
+    y = np.concatenate([y, nodes_y, [0.0, np.nan]])
+    return x, y
+
+
+def test_bilinear_matches_numpy_reference_on_and_off_the_map(grid):
+    x, y = _positions(grid, np.random.default_rng(0))
+    col, row = grid.xy_to_cell(x, y)
+    expected = _numpy_bilinear(grid.values, col, row)
+    got = grid.sample(x, y)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(expected))
+    np.testing.assert_allclose(got, expected, rtol=1e-14, atol=0)
+    # the reference does produce the NaN cases this test is about
+    assert np.isnan(expected).sum() > 100 and np.isfinite(expected).sum() > 1000
+
+
+def test_nearest_matches_numpy_reference_with_half_to_even_ties(grid):
+    x, y = _positions(grid, np.random.default_rng(1))
+    col, row = grid.xy_to_cell(x, y)
+    expected = _numpy_nearest(grid.values, col, row)
+    np.testing.assert_array_equal(grid.sample(x, y, method="nearest"), expected)
+
+
+def test_gradient_is_that_of_the_interpolant(grid):
+    rng = np.random.default_rng(2)
+    x = rng.uniform(grid.x0 + 1, grid.x0 + 51 * grid.dx, 500)
+    y = rng.uniform(grid.y0 + 1, grid.y0 + 35 * grid.dy, 500)
+    value, gx, gy = grid.sample_gradient(x, y)
+    np.testing.assert_allclose(value, grid.sample(x, y), rtol=1e-14)
+    # central differences inside one stencil cell are exact for a bilinear patch in x or y
+    h = 1e-4
+    col, row = grid.xy_to_cell(x, y)
+    safe = (np.abs(col - np.rint(col)) > 1e-3) & (np.abs(row - np.rint(row)) > 1e-3)
+    fx = (grid.sample(x + h, y) - grid.sample(x - h, y)) / (2 * h)
+    fy = (grid.sample(x, y + h) - grid.sample(x, y - h)) / (2 * h)
+    ok = safe & np.isfinite(value)
+    assert ok.sum() > 400
+    np.testing.assert_allclose(gx[ok], fx[ok], rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(gy[ok], fy[ok], rtol=1e-6, atol=1e-9)
+    # NaN wherever the value is NaN
+    off = grid.sample_gradient(np.array([grid.x0 - 1.0]), np.array([grid.y0]))
+    assert all(np.isnan(a[0]) for a in off)
+
+
+def test_known_gradient_of_a_plane():
+    yy, xx = np.mgrid[0:10, 0:12]
+    plane = Grid(3.0 * xx * 5.0 - 2.0 * yy * 4.0, 0.0, 0.0, 5.0, 4.0)
+    value, gx, gy = plane.sample_gradient(np.array([12.3, 54.9]), np.array([7.1, 35.0]))
+    np.testing.assert_allclose(value, [3.0 * 12.3 - 2.0 * 7.1, 3.0 * 54.9 - 2.0 * 35.0])
+    np.testing.assert_allclose(gx, 3.0)
+    np.testing.assert_allclose(gy, -2.0)
+
+
+def test_shapes_broadcast_and_float32_maps_read_in_float64(grid):
+    x = grid.x0 + np.linspace(0, 500, 7)[:, None]
+    y = grid.y0 + np.linspace(0, 400, 3)[None, :]
+    assert grid.sample(x, y).shape == (7, 3)
+    assert grid.sample(grid.x0 + 5.0, grid.y0 + 5.0).shape == ()
+    single = grid.values.astype(np.float32)
+    got = mapread.read_xy(single, grid.x0, grid.y0, grid.dx, grid.dy, x, y)
+    assert got.dtype == np.float64
+    expected = _numpy_bilinear(single.astype(float), *grid.xy_to_cell(x, y))
+    np.testing.assert_allclose(got, expected, rtol=1e-14)
+
+
+def test_beams_read_equals_pointwise_read(grid):
+    rng = np.random.default_rng(3)
+    col, row = rng.uniform(-2, 54, 300), rng.uniform(-2, 38, 300)
+    bcol, brow = np.array([-1.5, 0.0, 2.25]), np.array([0.5, 0.0, -0.75])
+    got = mapread.bilinear_beams(grid.values, col, row, bcol, brow)
+    expected = _numpy_bilinear(grid.values, col[:, None] + bcol, row[:, None] + brow)
+    np.testing.assert_allclose(got, expected, rtol=1e-14)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(expected))
+
+
+def test_unknown_method_raises(grid):
+    with pytest.raises(ValueError, match="unknown sampling method"):
+        grid.sample(0.0, 0.0, method="cubic")
+
+
+def test_grid_keeps_read_only_float_arrays_and_copies_the_rest():
+    base = np.arange(12.0).reshape(3, 4)
+    copied = Grid(base, 0.0, 0.0, 1.0, 1.0)
+    base[0, 0] = 99.0
+    assert copied.values[0, 0] == 0.0 and not copied.values.flags.writeable
+    single = base.astype(np.float32)
+    assert Grid(single, 0.0, 0.0, 1.0, 1.0).values.dtype == np.float64  # writeable: copied
+    single.flags.writeable = False
+    kept = Grid(single, 0.0, 0.0, 1.0, 1.0)
+    assert kept.values is single and kept.values.dtype == np.float32
+    strided = np.arange(24.0).reshape(3, 8)[:, ::2]
+    strided.flags.writeable = False
+    assert Grid(strided, 0.0, 0.0, 1.0, 1.0).values.flags.c_contiguous
