@@ -1,6 +1,7 @@
 """The ``geofix`` command line: thin -- parse, call the public API, print or write.
 
-Commands: ``demo``, ``run``, ``methods``, ``maps``, ``suitability``, ``export``.
+Commands: ``demo``, ``run``, ``methods``, ``maps``, ``suitability``, ``export``, ``grid``,
+``replay``, ``serve``.
 ``geofix run`` is a contract relied on by outside scripts (flags and JSON keys are kept
 exactly; they may be extended).
 """
@@ -199,6 +200,31 @@ def export(
 
         path = export_trials(load_scenario(scenario), out, trials=trials, seed=seed)
         _out.print(f"trials: {path}")
+
+    _guarded(go)
+
+
+@app.command("grid")
+def grid_command(
+    soundings: Annotated[
+        str, typer.Argument(help="GSF file, nav/soundings folder, soundings CSV/Parquet.")
+    ],
+    cell_m: Annotated[float, typer.Option("--cell-m", help="Cell size, metres.")],
+    out: Annotated[Path, typer.Option(help="Output netCDF map (z, z_std, z_count).")],
+    max_gap_cells: Annotated[
+        float, typer.Option(help="Fill empty cells at most this many cells from data.")
+    ] = 2.0,
+) -> None:
+    """Grid soundings to a netCDF map with an uncertainty layer (per-cell std and count)."""
+
+    def go():
+        from geofix.logs.gridmap import grid_log
+
+        gridded, path = grid_log(soundings, cell_m, out, max_gap_cells=max_gap_cells)
+        filled = float((~np.isnan(gridded.grid.values)).mean())
+        _out.print(f"{gridded.grid!r}: {filled:.0%} of cells with data; map: {path}")
+
+    import numpy as np
 
     _guarded(go)
 

@@ -86,6 +86,36 @@ def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var) -> np
     return ll.sum(axis=-1)
 
 
+def map_error_variance(error_std: Grid | None, position, heading: float, offsets) -> np.ndarray:
+    """Per-cell map-error variance at every beam's footprint, map units squared.
+
+    Parameters
+    ----------
+    error_std : Grid or None
+        The map's uncertainty layer (per-cell standard deviation, e.g.
+        :class:`geofix.maps.gridding.GriddedMap`); None gives zeros.
+    position : array_like
+        ``(2,)`` vehicle position the footprints are taken from (the current estimate),
+        metres.
+    heading : float
+        Heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets, metres.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(b,)`` ``std^2`` of the cell under each beam (nearest cell), 0 where the layer
+        has no value; added to the measurement variance of that beam.
+    """
+    offsets = np.asarray(offsets, dtype=float)
+    if error_std is None:
+        return np.zeros(offsets.shape[0])
+    x, y = footprint_xy(np.asarray(position, dtype=float), np.asarray(heading, float), offsets)
+    std = error_std.sample(x, y, method="nearest")
+    return np.where(np.isfinite(std), std**2, 0.0)
+
+
 @dataclass(frozen=True)
 class Linearisation:
     """Local linear model of the field around an estimate, one row per beam.
