@@ -5,7 +5,14 @@ depths, gravimeter anomalies) against a prior map to correct INS drift. See
 :mod:`geofix.conventions` for frames, angles and units.
 """
 
-from geofix.errors import ConfigError, GeofixError, MapError, MatchError, TrackOffMapError
+from geofix.errors import (
+    ConfigError,
+    GeofixError,
+    InputError,
+    MapError,
+    MatchError,
+    TrackOffMapError,
+)
 from geofix.maps.grid import Grid
 from geofix.match.base import Fix, Matcher, MatchProblem
 
@@ -16,10 +23,21 @@ __all__ = [
     "Fix",
     "GeofixError",
     "Grid",
+    "InputError",
     "MapError",
     "MatchError",
     "MatchProblem",
     "Matcher",
+    "Navigator",
     "TrackOffMapError",
     "__version__",
 ]
+
+
+def __getattr__(name: str):
+    """``geofix.Navigator`` is imported on first use (it pulls in the method registry)."""
+    if name == "Navigator":
+        from geofix.navigator import Navigator
+
+        return Navigator
+    raise AttributeError(f"module 'geofix' has no attribute {name!r}")

@@ -24,3 +24,8 @@ class TrackOffMapError(GeofixError):
 
 class MatchError(GeofixError):
     """A matcher could not produce a fix (for example an all-NaN search window)."""
+
+
+class InputError(GeofixError):
+    """An online input (a navigation record, a ping) is malformed, out of order or out of
+    bounds; the navigator refuses it and keeps its state."""

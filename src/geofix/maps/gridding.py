@@ -1,11 +1,12 @@
 """A map from soundings: block statistics plus a linear gridder, with an uncertainty layer.
 
 Scattered soundings ``(x, y, value)`` in a metric frame are reduced to one value per map
-cell with :class:`verde.BlockReduce` (the cell mean; the per-cell standard deviation and
-sounding count form the uncertainty layer). Cells without soundings but within
-``max_gap_cells`` of a cell with some are filled by :class:`verde.Linear` (Delaunay
-linear interpolation of the cell means); farther cells stay NaN (no data), so the map never
-claims terrain nobody measured.
+cell with :class:`verde.BlockReduce` (the cell mean, placed at the mean position of the
+cell's soundings; the per-cell standard deviation and sounding count form the
+uncertainty layer). :class:`verde.Linear` (Delaunay linear interpolation) carries the
+means to the cell centres, filling cells without soundings within ``max_gap_cells`` of
+a cell with some; farther cells stay NaN (no data), so the map never claims terrain
+nobody measured.
 
 The standard deviation layer is the spread of the soundings inside each cell: the error
 of reading that cell's mean at a point inside it (terrain within the cell plus sounding
@@ -101,21 +102,23 @@ def grid_soundings(
         raise MapError(f"gridding: need at least 3 valid soundings, got {pts.shape[0]}")
     x0, y0, nx, ny = _layout(pts, float(cell_m))
     region = (x0 - cell_m / 2, x0 + (nx - 0.5) * cell_m, y0 - cell_m / 2, y0 + (ny - 0.5) * cell_m)
-    stats = {}
+    stats, located = {}, {}
     for label, reduction in (("mean", np.mean), ("std", np.std), ("count", np.size)):
         blocks = vd.BlockReduce(
             reduction, spacing=cell_m, region=region, center_coordinates=True, adjust="region"
         )
         (bx, by), stats[label] = blocks.filter((pts[:, 0], pts[:, 1]), pts[:, 2])
+    for axis in (0, 1):  # where each cell's soundings are on average
+        blocks = vd.BlockReduce(np.mean, spacing=cell_m, region=region, adjust="region")
+        _, located[axis] = blocks.filter((pts[:, 0], pts[:, 1]), pts[:, axis])
     col = np.clip(np.rint((bx - x0) / cell_m).astype(int), 0, nx - 1)
     row = np.clip(np.rint((by - y0) / cell_m).astype(int), 0, ny - 1)
-    mean = np.full((ny, nx), np.nan)
     std = np.full((ny, nx), np.nan)
     count = np.zeros((ny, nx), dtype=np.int64)
-    mean[row, col] = stats["mean"]
     count[row, col] = stats["count"].astype(np.int64)
     std[row, col] = np.where(stats["count"] >= 2, stats["std"], np.nan)
-    mean = _fill_gaps(mean, (bx, by), stats["mean"], x0, y0, cell_m, max_gap_cells)
+    centroids = (located[0], located[1])
+    mean = _interpolate(centroids, stats["mean"], (bx, by), x0, y0, nx, ny, cell_m, max_gap_cells)
     info = {"gridded_from": "soundings", "soundings": int(pts.shape[0]), "cell_m": cell_m}
     grid = Grid(mean, x0, y0, cell_m, cell_m, kind=kind, name=name, meta={**(meta or {}), **info})
     return GriddedMap(grid, std, count)
@@ -136,24 +139,33 @@ def _layout(pts: np.ndarray, cell: float) -> tuple[float, float, int, int]:
     return float(lo[0]), float(lo[1]), nx, ny
 
 
-def _fill_gaps(mean, block_xy, block_mean, x0, y0, cell, max_gap_cells) -> np.ndarray:
-    """Fill empty cells near data by linear interpolation of the cell means."""
+def _interpolate(centroids, block_mean, centres, x0, y0, nx, ny, cell, max_gap_cells):
+    """Cell-centre values from the cell means placed where their soundings lie.
+
+    A cell mean is the field at its soundings' mean position, not at the cell centre (at
+    a survey's edge the two can be half a cell apart, on a slope a sizeable bias), so the
+    means are interpolated linearly (:class:`verde.Linear`) from those positions to the
+    centres; centres outside the hull of those positions (the survey's rim) take the
+    nearest cell mean (:class:`verde.KNeighbors`), so that a bilinear read is defined up to
+    the last sounding. Centres farther than ``max_gap_cells`` from every cell with
+    soundings stay NaN.
+    """
     import verde as vd
 
-    empty = np.isnan(mean)
-    if not empty.any() or block_mean.size < 3:
-        return mean
-    ny, nx = mean.shape
     gx, gy = np.meshgrid(x0 + cell * np.arange(nx), y0 + cell * np.arange(ny))
-    near = vd.distance_mask(block_xy, maxdist=max_gap_cells * cell, coordinates=(gx, gy))
-    want = empty & near
-    if want.any():
-        try:
-            fitted = vd.Linear().fit(block_xy, block_mean)
-            mean = mean.copy()
-            mean[want] = fitted.predict((gx[want], gy[want]))
-        except Exception as exc:  # a degenerate (collinear) set of cells
-            raise MapError(f"gridding: cannot interpolate the cell means: {exc}") from None
+    near = vd.distance_mask(centres, maxdist=max_gap_cells * cell, coordinates=(gx, gy))
+    mean = np.full((ny, nx), np.nan)
+    if block_mean.size < 3:
+        raise MapError("gridding: the soundings fill fewer than 3 cells; use a smaller cell")
+    try:
+        fitted = vd.Linear().fit(centroids, block_mean)
+        mean[near] = fitted.predict((gx[near], gy[near]))
+    except Exception as exc:  # a degenerate (collinear) set of cells
+        raise MapError(f"gridding: cannot interpolate the cell means: {exc}") from None
+    rim = near & np.isnan(mean)
+    if rim.any():  # outside the hull of the means: the nearest cell mean
+        nearest = vd.KNeighbors(k=1).fit(centroids, block_mean)
+        mean[rim] = nearest.predict((gx[rim], gy[rim]))
     return mean
 
 
