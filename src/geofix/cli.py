@@ -229,6 +229,74 @@ def grid_command(
     _guarded(go)
 
 
+@app.command("replay")
+def replay_command(
+    log: Annotated[str, typer.Argument(help="GSF file, geofix export, nav/soundings folder.")],
+    method: Annotated[
+        list[str], typer.Option("--method", "-m", help="Recursive method spec, e.g. 'pmf'.")
+    ],
+    map_path: Annotated[
+        str | None, typer.Option("--map", help="Map file (default: an export's own map).")
+    ] = None,
+    ins_initial_error_m: Annotated[
+        float | None, typer.Option(help="Initial INS error simulated on a GNSS log, metres.")
+    ] = None,
+    ins: Annotated[
+        Path | None, typer.Option(help="Scenario YAML whose ins: numbers drive the INS.")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the INS simulation and filters.")] = 0,
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/replay"),
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print one JSON object on stdout, nothing else.")
+    ] = False,
+    noise_std: Annotated[
+        float | None, typer.Option(help="Measurement noise 1-sigma per beam, map units.")
+    ] = None,
+    beams: Annotated[
+        int | None, typer.Option(help="Beams of a ping used per update (default 64).")
+    ] = None,
+    trial: Annotated[int, typer.Option(help="Trial of a geofix export log.")] = 0,
+) -> None:
+    """Replay a logged mission ping by ping through the online navigator."""
+
+    def go():
+        from geofix.replay import replay_log
+
+        settings = {}
+        if noise_std is not None:
+            settings["noise_std"] = noise_std
+        if beams is not None:
+            settings["max_update_beams"] = beams
+        result, paths = replay_log(
+            log, map_path, method, ins, ins_initial_error_m, seed, out, settings, trial
+        )
+        if json_output:
+            sys.stdout.write(json.dumps(result.summary) + "\n")
+            return
+        _print_replay(result.summary)
+        for label, path in paths.items():
+            _out.print(f"{label}: {path}")
+
+    _guarded(go)
+
+
+def _print_replay(summary: dict) -> None:
+    table = Table(title=f"replay: {summary['pings']} pings")
+    for col in (
+        "method",
+        "end error m",
+        "mean error m",
+        "max error m",
+        "converged at s",
+        "reinits",
+    ):
+        table.add_column(col)
+    for name, row in summary["methods"].items():
+        cells = [row[k] for k in ("end_error_m", "mean_error_m", "max_error_m", "converged_at_s")]
+        table.add_row(name, *("-" if v is None else f"{v:.1f}" for v in cells), str(row["reinits"]))
+    _out.print(table)
+
+
 def builtin_scenario(name: str) -> Path:
     """Path of a scenario shipped inside the package."""
     from geofix.sim.scenario import builtin_scenario_path

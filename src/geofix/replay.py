@@ -286,3 +286,63 @@ def replay_figure(result: ReplayResult, grid: Grid, path: Path) -> Path:
     fig.suptitle(f"replay of {result.mission.name}")
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def replay_log(
+    log,
+    map_path,
+    methods: list[str],
+    ins_path=None,
+    initial_error_m=None,
+    seed: int = 0,
+    out_dir=None,
+    settings: dict | None = None,
+    trial: int = 0,
+) -> tuple[ReplayResult, dict]:
+    """``geofix replay``: read the log and the map, replay, write the outputs.
+
+    Parameters
+    ----------
+    log : str or pathlib.Path
+        Any log :func:`geofix.logs.read_mission` reads.
+    map_path : str or None
+        Any map :func:`geofix.maps.load_grid` reads (its ``z_std`` layer, if any, is the
+        per-cell map error); None for a ``geofix export`` log, whose own map is used.
+    ins_path : str or pathlib.Path, optional
+        Scenario YAML whose ``ins:`` numbers drive the INS simulated on a GNSS log.
+    out_dir : str or pathlib.Path, optional
+        Folder for ``estimates.csv``, ``estimates.nc`` and ``replay.png`` (none if None).
+
+    Returns
+    -------
+    tuple
+        ``(ReplayResult, {label: path})``.
+    """
+    from geofix.logs.exported import read_exported
+    from geofix.logs.read import read_mission
+    from geofix.maps.gridding import load_map_error
+    from geofix.maps.io import load_grid
+
+    ins = None
+    if ins_path is not None:
+        from geofix.sim.scenario import load_scenario
+
+        ins = load_scenario(ins_path).ins
+    map_error = None
+    if map_path is None:
+        if not str(log).lower().endswith((".nc", ".nc4")):
+            raise ConfigError("replay: --map is required unless the log is a geofix export")
+        mission, grid = read_exported(log, trial=trial)
+    else:
+        grid = load_grid(map_path)
+        map_error = load_map_error(map_path) if not str(map_path).startswith("builtin:") else None
+        frame = grid.meta.get("projection")
+        mission = read_mission(log, frame=frame, trial=trial)
+        if mission.frame is not None and frame is None:
+            raise ConfigError(
+                f"replay: the log is in lon/lat but map {map_path} has no projection; "
+                "grid it with geofix grid or load a lon/lat map"
+            )
+    result = replay(mission, grid, methods, ins, initial_error_m, seed, settings, map_error)
+    paths = {} if out_dir is None else write_outputs(result, grid, out_dir)
+    return result, paths

@@ -72,6 +72,10 @@ def grid_log(
     the same frame.
     """
     pts, frame, name = read_soundings(path)
+    try:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot create the folder of {out}: {exc}") from None
     meta = {"source": Path(str(path)).name, "projection": frame, "format": "soundings"}
     gridded = grid_soundings(
         pts[:, 0], pts[:, 1], pts[:, 2], cell_m, max_gap_cells=max_gap_cells, name=name, meta=meta
