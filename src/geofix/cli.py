@@ -297,6 +297,45 @@ def _print_replay(summary: dict) -> None:
     _out.print(table)
 
 
+@app.command("serve")
+def serve_command(
+    map_path: Annotated[str, typer.Option("--map", help="Map file or builtin:NAME.")],
+    port: Annotated[int, typer.Option(help="TCP port.")],
+    method: Annotated[str, typer.Option("--method", "-m", help="Recursive method spec.")] = "pmf",
+    host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
+    seed: Annotated[int, typer.Option(help="Seed of every connection's navigator.")] = 0,
+    noise_std: Annotated[
+        float | None, typer.Option(help="Measurement noise 1-sigma per beam, map units.")
+    ] = None,
+    beams: Annotated[
+        int | None, typer.Option(help="Beams of a ping used per update (default 64).")
+    ] = None,
+    variable: Annotated[str | None, typer.Option(help="netCDF variable / band.")] = None,
+    resample_m: Annotated[float | None, typer.Option(help="Cell size, metres.")] = None,
+) -> None:
+    """Serve the navigator over TCP: newline-delimited JSON, one navigator per connection."""
+
+    def go():
+        from geofix.maps.gridding import load_map_error
+        from geofix.maps.io import load_grid
+        from geofix.server import serve
+
+        grid = load_grid(map_path, variable=variable, resample_m=resample_m)
+        error = None if map_path.startswith("builtin:") else load_map_error(map_path)
+        settings = {}
+        if noise_std is not None:
+            settings["noise_std"] = noise_std
+        if beams is not None:
+            settings["max_update_beams"] = beams
+        _err.print(f"serving {grid!r} with {method} on {host}:{port} (Ctrl-C stops)")
+        serve(grid, method, host, port, settings, seed, error)
+
+    try:
+        _guarded(go)
+    except OSError as exc:
+        _fail(f"cannot listen on {host}:{port}: {exc.strerror or exc}")
+
+
 def builtin_scenario(name: str) -> Path:
     """Path of a scenario shipped inside the package."""
     from geofix.sim.scenario import builtin_scenario_path

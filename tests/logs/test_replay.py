@@ -79,3 +79,9 @@ def test_replay_errors_are_one_line(ex1811_map, tmp_path):
     args = ["replay", "builtin:ex1811", "--map", str(ex1811_map), "--method", "tercom"]
     result = runner.invoke(app, [*args, "--out", str(tmp_path)])
     assert result.exit_code == 2 and "batch matcher" in result.output
+
+
+def test_serve_refuses_a_batch_matcher_before_listening():
+    args = ["serve", "--map", "builtin:mb_1km", "--method", "tercom", "--port", "0"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2 and "batch matcher" in result.output
