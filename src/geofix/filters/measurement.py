@@ -11,8 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import map_coordinates
 
+from geofix.filters._reads import bilinear_reads, gaussian_log_likelihood
 from geofix.maps.grid import Grid
 from geofix.match.base import footprint_xy
 
@@ -39,20 +39,15 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
     -------
     numpy.ndarray
         ``(..., b)`` predicted values; NaN off the map and wherever a cell of the bilinear
-        stencil is NaN (as :meth:`Grid.sample`), computed with
-        ``scipy.ndimage.map_coordinates`` for speed on large hypothesis sets.
+        stencil is NaN (as :meth:`Grid.sample`), read in one compiled loop
+        (:func:`geofix.filters._reads.bilinear_reads`) for speed on large hypothesis sets.
     """
     positions = np.asarray(positions, dtype=float)
     offsets = np.asarray(offsets, dtype=float)
     # The beam offsets in metres are the same for every hypothesis: add them in cells.
     ox, oy = footprint_xy(np.zeros(2), np.asarray(heading, dtype=float), offsets)
     col, row = grid.xy_to_cell(positions[..., 0].ravel(), positions[..., 1].ravel())
-    coords = np.empty((2, col.size, offsets.shape[0]))
-    np.add(row[:, None], oy / grid.dy, out=coords[0])
-    np.add(col[:, None], ox / grid.dx, out=coords[1])
-    out = map_coordinates(
-        grid.values, coords.reshape(2, -1), order=1, mode="constant", cval=np.nan, prefilter=False
-    )
+    out = bilinear_reads(grid.values, row, col, oy / grid.dy, ox / grid.dx)
     return out.reshape(*positions.shape[:-1], offsets.shape[0])
 
 
@@ -76,14 +71,10 @@ def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var) -> np
         ``(...)`` log-likelihoods up to a constant; off-map beams cost
         :data:`OFF_MAP_LOG_LIKELIHOOD` each.
     """
-    use = np.isfinite(measured)
-    if not use.any():
-        return np.zeros(predicted.shape[:-1])
-    var = np.broadcast_to(np.asarray(noise_var, dtype=float), measured.shape)
-    d = predicted[..., use] - measured[use]
-    ll = -0.5 * d**2 / var[use]
-    ll = np.where(np.isfinite(ll), ll, OFF_MAP_LOG_LIKELIHOOD)
-    return ll.sum(axis=-1)
+    measured = np.asarray(measured, dtype=float)
+    flat = np.asarray(predicted, dtype=float).reshape(-1, measured.shape[0])
+    ll = gaussian_log_likelihood(flat, measured, noise_var, OFF_MAP_LOG_LIKELIHOOD)
+    return ll.reshape(predicted.shape[:-1])
 
 
 def map_error_variance(error_std: Grid | None, position, heading: float, offsets) -> np.ndarray:
