@@ -92,12 +92,17 @@ class Client:
 
     def ping(self, t: float, beams, **kw) -> dict:
         """``ping``: beams ``(b, 3)`` ``(across_m, along_m, value)``; NaN values go as null."""
-        rows = [
-            [float(a), float(b), None if not np.isfinite(v) else float(v)]
-            for a, b, v in np.asarray(beams, dtype=float)
-        ]
-        return self.request({"type": "ping", "t": float(t), "beams": rows}, **kw)
+        return self.request(ping_message(t, beams), **kw)
 
     def estimate(self, **kw) -> dict:
         """``estimate``: the current estimate."""
         return self.request({"type": "estimate"}, **kw)
+
+
+def ping_message(t: float, beams) -> dict:
+    """The ``ping`` request for beams ``(b, 3)`` (NaN values become null)."""
+    rows = [
+        [float(a), float(b), None if not np.isfinite(v) else float(v)]
+        for a, b, v in np.asarray(beams, dtype=float)
+    ]
+    return {"type": "ping", "t": float(t), "beams": rows}
