@@ -203,7 +203,12 @@ async def _lines(reader: asyncio.StreamReader):
 
 
 def _encode(reply: dict) -> bytes:
-    return (json.dumps(reply, allow_nan=False, separators=(",", ":")) + "\n").encode()
+    """One reply line; a reply that is not valid JSON (a NaN) becomes an error reply."""
+    try:
+        text = json.dumps(reply, allow_nan=False, separators=(",", ":"))
+    except (TypeError, ValueError) as exc:
+        text = json.dumps({"ok": False, "error": f"internal error: reply not JSON ({exc})"})
+    return (text + "\n").encode()
 
 
 OVERSIZED = {"ok": False, "error": f"request line longer than {MAX_LINE_BYTES} bytes"}

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geofix.filters._reads import bilinear_reads, gaussian_log_likelihood
+from geofix.maps._reads import bilinear_reads, gaussian_log_likelihood
 from geofix.maps.grid import Grid
 from geofix.match.base import footprint_xy
 
@@ -40,7 +40,7 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
     numpy.ndarray
         ``(..., b)`` predicted values; NaN off the map and wherever a cell of the bilinear
         stencil is NaN (as :meth:`Grid.sample`), read in one compiled loop
-        (:func:`geofix.filters._reads.bilinear_reads`) for speed on large hypothesis sets.
+        (:func:`geofix.maps._reads.bilinear_reads`) for speed on large hypothesis sets.
     """
     positions = np.asarray(positions, dtype=float)
     offsets = np.asarray(offsets, dtype=float)

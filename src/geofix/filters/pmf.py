@@ -64,9 +64,9 @@ import numpy as np
 
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _grid_ops as ops
-from geofix.filters._reads import node_field_variance_kernel
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.measurement import log_likelihood, predict_measurements
+from geofix.maps._reads import node_field_variance_kernel
 from geofix.maps.grid import Grid
 from geofix.match.base import MatchProblem
 from geofix.match.registry import register
