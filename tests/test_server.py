@@ -131,3 +131,26 @@ def test_ten_thousand_hostile_lines_each_get_one_error_and_never_crash_it(export
             assert again.init(0.0, *mission.nav[0], 500.0)["ok"]
             with pytest.raises(ServerError, match="before the previous input"):
                 again.nav(-1.0, *mission.nav[0], 0.0)
+
+
+def test_lon_lat_requests_land_in_the_map_frame_and_null_offsets_are_refused():
+    from pyproj import Proj
+
+    from geofix.logs import read_mission
+    from geofix.maps.gridding import grid_soundings
+    from geofix.server import Session
+
+    mission = read_mission("builtin:ex1811").subset(slice(0, 10))
+    x, y, v = mission.soundings().T
+    grid = grid_soundings(x, y, v, 100.0, meta={"projection": mission.frame}).grid
+    session = Session(grid, "pmf")
+    lon, lat = mission.meta["lon"][0], mission.meta["lat"][0]
+    line = json.dumps({"type": "init", "t": 0.0, "lon": lon, "lat": lat, "sigma_m": 50.0})
+    reply = session.handle(line.encode())
+    assert reply["ok"], reply
+    expected = Proj(mission.frame)(lon, lat)
+    assert (reply["x"], reply["y"]) == pytest.approx(expected, abs=1e-6)
+    bad = {"type": "ping", "t": 0.0, "beams": [[None, 0.0, -1500.0]] * 3}
+    assert "finite" in session.handle(json.dumps(bad).encode())["error"]
+    wrong = {"type": "ping", "t": 0.0, "beams": [[0.0, True, -1500.0]] * 3}
+    assert "holds a bool" in session.handle(json.dumps(wrong).encode())["error"]

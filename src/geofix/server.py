@@ -87,12 +87,21 @@ def _number(request: dict, key: str) -> float:
     return out
 
 
+_NUMBER_OR_NULL = frozenset({int, float, type(None)})
+
+
 def _beams(request: dict, max_beams: int) -> np.ndarray:
     beams = request.get("beams")
     if not isinstance(beams, list) or not beams:
         raise RequestError("ping: beams must be a non-empty list of [across_m, along_m, value]")
     if len(beams) > max_beams:
         raise RequestError(f"ping: {len(beams)} beams, more than max_beams = {max_beams}")
+    if (
+        all(type(row) is list and len(row) == 3 for row in beams)
+        and {type(v) for row in beams for v in row} <= _NUMBER_OR_NULL
+    ):
+        out = np.array(beams, dtype=float)  # null becomes NaN (offsets are checked later)
+        return out
     out = np.empty((len(beams), 3))
     for i, row in enumerate(beams):
         if not isinstance(row, list) or len(row) != 3:
