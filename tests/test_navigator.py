@@ -150,3 +150,20 @@ def test_bad_method_or_setting_is_a_config_error(synthetic_grid):
         Navigator(synthetic_grid, "pmf", {"gate": 3})
     with pytest.raises(ConfigError, match="unknown method"):
         Navigator(synthetic_grid, "nope")
+
+
+def test_a_mounting_offset_moves_every_beam_by_it(synthetic_grid, rng):
+    t, truth, beams = pings(synthetic_grid, rng, n=25, noise=0.1)
+    mount = np.array([12.0, -8.0])  # sonar 12 m to starboard, 8 m aft of the nav point
+    # the beams were measured from the sonar: give them relative to it, and the nav point
+    shifted = []
+    for b in beams:
+        rel = b.copy()
+        rel[:, :2] -= mount
+        shifted.append(rel)
+    settings = {"noise_std": 0.1, "mount_offset_m": tuple(mount)}
+    right = run(Navigator(synthetic_grid, "pmf", settings, seed=1), t, truth, shifted)
+    wrong = run(Navigator(synthetic_grid, "pmf", {"noise_std": 0.1}, seed=1), t, truth, shifted)
+    assert np.hypot(*(right[-1].position - truth[-1])) < 2.0
+    # without it the fix absorbs the 14 m lever arm
+    assert np.hypot(*(wrong[-1].position - truth[-1])) > 8.0

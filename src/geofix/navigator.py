@@ -1,10 +1,13 @@
 """``geofix.Navigator``: an online terrain-aided navigator around any recursive filter.
 
->>> nav = Navigator(grid, method="pmf", settings={"noise_std": 2.0}, seed=1)
->>> nav.init(t=0.0, position=(x0, y0), sigma_m=500.0)            # doctest: +SKIP
->>> nav.motion(t, position=(x, y), heading=psi)                   # INS pose, metres, rad
->>> est = nav.measure(t, beams)                 # (b, 3) across_m, along_m, value
->>> est.position, est.covariance, est.mle, est.status, est.nis
+Usage (``grid`` a :class:`~geofix.maps.grid.Grid`; positions in metres, headings in
+radians)::
+
+    nav = Navigator(grid, method="pmf", settings={"noise_std": 2.0}, seed=1)
+    nav.init(t=0.0, position=(x0, y0), sigma_m=500.0)
+    nav.motion(t, position=(x, y), heading=psi)       # the INS pose
+    est = nav.measure(t, beams)                       # (b, 3) across_m, along_m, value
+    est.position, est.covariance, est.mle, est.status, est.nis
 
 The method is any registered recursive filter by name or spec (``"pmf"``, ``"pf"``,
 ``"sitan"``, ``"pmf:points=41"``, and every filter added to the registry later on the

@@ -91,6 +91,10 @@ class NavigatorSettings:
         Largest speed implied by two navigation records, m/s.
     max_beams : int
         Most beams a ping may carry.
+    mount_offset_m : tuple of float
+        The sensor's mounting offset from the navigation reference point, ``(across,
+        along)`` metres in the body frame (starboard, forward), added to every beam's
+        offsets.
     """
 
     noise_std: float = 2.0
@@ -109,6 +113,7 @@ class NavigatorSettings:
     max_pose_gap_s: float | None = 5.0
     max_speed_m_s: float | None = 30.0
     max_beams: int = 4096
+    mount_offset_m: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         positive = ("noise_std", "nis_limit", "max_beams", "min_beams")
@@ -133,6 +138,11 @@ class NavigatorSettings:
             raise ConfigError("navigator: nis_window and process_noise_m2_s must be >= 0")
         if not 0.0 <= self.min_start_share <= 1.0:
             raise ConfigError("navigator: min_start_share must be in [0, 1]")
+        mount = np.asarray(self.mount_offset_m, dtype=float)
+        if mount.shape != (2,) or not np.isfinite(mount).all():
+            raise ConfigError(
+                "navigator: mount_offset_m must be two finite numbers (across, along)"
+            )
 
     @classmethod
     def passive(cls) -> NavigatorSettings:
@@ -471,6 +481,8 @@ class OnlineFilter:
             )
         beams = self._beams(beams)
         offsets, values = beams[:, :2], beams[:, 2]
+        if any(self.settings.mount_offset_m):
+            offsets = offsets + np.asarray(self.settings.mount_offset_m, dtype=float)
         var = self._noise_var(noise_var, values.shape[0])
         offsets, values, var = self._thin(offsets, values, var)
         if self.map_error is not None:
