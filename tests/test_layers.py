@@ -13,17 +13,19 @@ PACKAGE = Path(geofix.__file__).parent
 #: Bottom up. A module may import its own layer's package and any layer below it; modules
 #: on one line are siblings that do not import each other.
 LAYERS = (
-    ("errors", "conventions", "_strict", "_version", "_lifetime"),
+    ("errors", "conventions", "_strict", "_version", "_lifetime", "_measurement_kernels"),
     ("memory",),
     ("maps",),
     ("nav", "sensors"),
     ("problem",),
     ("measurement",),
     ("sim",),
-    ("match", "filters"),
+    ("match", "filters", "logs"),
     ("methods",),
+    ("navigator",),
     ("evaluate",),
     ("plot", "console", "report"),
+    ("replay", "server", "client"),
     ("cli",),
     ("__main__",),
 )

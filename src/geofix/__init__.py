@@ -79,6 +79,11 @@ _PUBLIC = {
     "MapError": "geofix.errors",
     "MatchError": "geofix.errors",
     "TrackOffMapError": "geofix.errors",
+    "InputError": "geofix.errors",
+    # recorded missions and the online navigator
+    "Mission": "geofix.logs.mission",
+    "read_mission": "geofix.logs.read",
+    "Navigator": "geofix.navigator",
 }
 
 #: Public names whose defining function has another name there.

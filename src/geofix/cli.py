@@ -1,7 +1,7 @@
 """The ``geofix`` command line: thin -- parse, call the public API, print or write.
 
 Commands: ``demo``, ``run``, ``methods``, ``maps``, ``suitability``, ``export``,
-``report``.
+``report``, ``grid``, ``replay``, ``serve``.
 ``geofix run`` is a contract relied on by outside scripts (flags and JSON keys are kept
 exactly; they may be extended).
 """
@@ -339,6 +339,138 @@ def report(
         _out.print(f"report: {write_report(out_dir, out)}")
 
     _guarded(go)
+
+
+@app.command("grid")
+def grid_command(
+    soundings: Annotated[
+        str, typer.Argument(help="GSF file, nav/soundings folder, soundings CSV/Parquet.")
+    ],
+    cell_m: Annotated[float, typer.Option("--cell-m", help="Cell size, metres.")],
+    out: Annotated[Path, typer.Option(help="Output netCDF map (z, z_std, z_count).")],
+    max_gap_cells: Annotated[
+        float, typer.Option(help="Fill empty cells at most this many cells from data.")
+    ] = 2.0,
+) -> None:
+    """Grid soundings to a netCDF map with an uncertainty layer (per-cell std and count)."""
+
+    def go():
+        from geofix.logs.gridmap import grid_log
+
+        gridded, path = grid_log(soundings, cell_m, out, max_gap_cells=max_gap_cells)
+        filled = float((~np.isnan(gridded.grid.values)).mean())
+        _out.print(f"{gridded.grid!r}: {filled:.0%} of cells with data; map: {path}")
+
+    import numpy as np
+
+    _guarded(go)
+
+
+@app.command("replay")
+def replay_command(
+    log: Annotated[str, typer.Argument(help="GSF file, geofix export, nav/soundings folder.")],
+    method: Annotated[
+        list[str], typer.Option("--method", "-m", help="Recursive method spec, e.g. 'pmf'.")
+    ],
+    map_path: Annotated[
+        str | None, typer.Option("--map", help="Map file (default: an export's own map).")
+    ] = None,
+    ins_initial_error_m: Annotated[
+        float | None, typer.Option(help="Initial INS error simulated on a GNSS log, metres.")
+    ] = None,
+    ins: Annotated[
+        Path | None, typer.Option(help="Scenario YAML whose ins: numbers drive the INS.")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the INS simulation and filters.")] = 0,
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/replay"),
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print one JSON object on stdout, nothing else.")
+    ] = False,
+    noise_std: Annotated[
+        float | None, typer.Option(help="Measurement noise 1-sigma per beam, map units.")
+    ] = None,
+    beams: Annotated[
+        int | None, typer.Option(help="Beams of a ping used per update (default 64).")
+    ] = None,
+    trial: Annotated[int, typer.Option(help="Trial of a geofix export log.")] = 0,
+) -> None:
+    """Replay a logged mission ping by ping through the online navigator."""
+
+    def go():
+        from geofix.replay import replay_log
+
+        settings = {}
+        if noise_std is not None:
+            settings["noise_std"] = noise_std
+        if beams is not None:
+            settings["max_update_beams"] = beams
+        result, paths = replay_log(
+            log, map_path, method, ins, ins_initial_error_m, seed, out, settings, trial
+        )
+        if json_output:
+            sys.stdout.write(json.dumps(result.summary) + "\n")
+            return
+        _print_replay(result.summary)
+        for label, path in paths.items():
+            _out.print(f"{label}: {path}")
+
+    _guarded(go)
+
+
+def _print_replay(summary: dict) -> None:
+    table = Table(title=f"replay: {summary['pings']} pings")
+    for col in (
+        "method",
+        "end error m",
+        "mean error m",
+        "max error m",
+        "converged at s",
+        "reinits",
+    ):
+        table.add_column(col)
+    for name, row in summary["methods"].items():
+        cells = [row[k] for k in ("end_error_m", "mean_error_m", "max_error_m", "converged_at_s")]
+        table.add_row(name, *("-" if v is None else f"{v:.1f}" for v in cells), str(row["reinits"]))
+    _out.print(table)
+
+
+@app.command("serve")
+def serve_command(
+    map_path: Annotated[str, typer.Option("--map", help="Map file or builtin:NAME.")],
+    port: Annotated[int, typer.Option(help="TCP port.")],
+    method: Annotated[str, typer.Option("--method", "-m", help="Recursive method spec.")] = "pmf",
+    host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
+    seed: Annotated[int, typer.Option(help="Seed of every connection's navigator.")] = 0,
+    noise_std: Annotated[
+        float | None, typer.Option(help="Measurement noise 1-sigma per beam, map units.")
+    ] = None,
+    beams: Annotated[
+        int | None, typer.Option(help="Beams of a ping used per update (default 64).")
+    ] = None,
+    variable: Annotated[str | None, typer.Option(help="netCDF variable / band.")] = None,
+    resample_m: Annotated[float | None, typer.Option(help="Cell size, metres.")] = None,
+) -> None:
+    """Serve the navigator over TCP: newline-delimited JSON, one navigator per connection."""
+
+    def go():
+        from geofix.maps.gridding import load_map_error
+        from geofix.maps.io import load_grid
+        from geofix.server import serve
+
+        grid = load_grid(map_path, variable=variable, resample_m=resample_m)
+        error = None if map_path.startswith("builtin:") else load_map_error(map_path)
+        settings = {}
+        if noise_std is not None:
+            settings["noise_std"] = noise_std
+        if beams is not None:
+            settings["max_update_beams"] = beams
+        _err.print(f"serving {grid!r} with {method} on {host}:{port} (Ctrl-C stops)")
+        serve(grid, method, host, port, settings, seed, error)
+
+    try:
+        _guarded(go)
+    except OSError as exc:
+        _fail(f"cannot listen on {host}:{port}: {exc.strerror or exc}")
 
 
 def builtin_scenario(name: str) -> Path:

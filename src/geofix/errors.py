@@ -32,3 +32,10 @@ class MemoryBudgetError(GeofixError):
 
 class GeofixWarning(UserWarning):
     """Something was adjusted rather than refused (e.g. ``--jobs`` capped at the cores)."""
+
+
+class InputError(GeofixError):
+    """An online input (a navigation record, a ping) the navigator refuses.
+
+    It is malformed, out of order or out of bounds; the navigator keeps its state.
+    """

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geofix._measurement_kernels import gaussian_log_likelihood
 from geofix.maps.grid import Grid
 from geofix.maps.mapread import bilinear_beams
 from geofix.maps.terrain import gradient, plane_fit
@@ -130,14 +131,40 @@ def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var) -> np
         ``(...)`` log-likelihoods up to a constant; off-map beams cost
         :data:`OFF_MAP_LOG_LIKELIHOOD` each.
     """
-    use = np.isfinite(measured)
-    if not use.any():
-        return np.zeros(predicted.shape[:-1])
-    var = np.broadcast_to(np.asarray(noise_var, dtype=float), measured.shape)
-    d = predicted[..., use] - measured[use]
-    ll = -0.5 * d**2 / var[use]
-    ll = np.where(np.isfinite(ll), ll, OFF_MAP_LOG_LIKELIHOOD)
-    return ll.sum(axis=-1)
+    measured = np.asarray(measured, dtype=float)
+    flat = np.asarray(predicted, dtype=float).reshape(-1, measured.shape[0])
+    ll = gaussian_log_likelihood(flat, measured, noise_var, OFF_MAP_LOG_LIKELIHOOD)
+    return ll.reshape(predicted.shape[:-1])
+
+
+def map_error_variance(error_std: Grid | None, position, heading: float, offsets) -> np.ndarray:
+    """Per-cell map-error variance at every beam's footprint, map units squared.
+
+    Parameters
+    ----------
+    error_std : Grid or None
+        The map's uncertainty layer (per-cell standard deviation, e.g.
+        :class:`geofix.maps.gridding.GriddedMap`); None gives zeros.
+    position : array_like
+        ``(2,)`` vehicle position the footprints are taken from (the current estimate),
+        metres.
+    heading : float
+        Heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets, metres.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(b,)`` ``std^2`` of the cell under each beam (nearest cell), 0 where the layer
+        has no value; added to the measurement variance of that beam.
+    """
+    offsets = np.asarray(offsets, dtype=float)
+    if error_std is None:
+        return np.zeros(offsets.shape[0])
+    x, y = footprint_xy(np.asarray(position, dtype=float), np.asarray(heading, float), offsets)
+    std = error_std.sample(x, y, method="nearest")
+    return np.where(np.isfinite(std), std**2, 0.0)
 
 
 @dataclass(frozen=True)

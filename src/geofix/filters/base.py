@@ -128,22 +128,30 @@ def observations(problem: MatchProblem) -> list[Observation]:
 def run_filter(filt, problem: MatchProblem, rng: np.random.Generator) -> Fix:
     """The one time loop: initialise, then predict and update at every sample.
 
+    Every step goes through :class:`geofix.filters.online.OnlineFilter` (with its passive
+    settings: no gating, no re-initialisation), the same two steps a replay or a server
+    connection drives, so a campaign trial and an online navigator share one step.
+
     Returns
     -------
     Fix
         ``track`` the estimate at every sample; ``covariance`` the last one;
         ``diagnostics["covariances"]`` ``(n, 2, 2)``; ``ambiguous`` from the final state.
     """
+    from geofix.filters.online import NavigatorSettings, OnlineFilter
+
     grid: Grid = problem.grid
     obs = observations(problem)
     steps = motions(problem)
-    state = filt.update(filt.initialize(problem, rng), obs[0], grid, rng)
+    nav = OnlineFilter(filt, grid, NavigatorSettings.passive(), rng)
+    nav.start(problem)
     means, covs = [np.empty((problem.n, 2)), np.empty((problem.n, 2, 2))]
-    means[0], covs[0] = filt.estimate(state)
-    for k in range(1, problem.n):
-        state = filt.predict(state, steps[k - 1], rng)
-        state = filt.update(state, obs[k], grid, rng)
-        means[k], covs[k] = filt.estimate(state)
+    for k in range(problem.n):
+        if k > 0:
+            nav.predict(steps[k - 1])
+        est = nav.update(obs[k], float(problem.times[k]))
+        means[k], covs[k] = est.position, est.covariance
+    state = nav.state
     return Fix(
         track=means,
         covariance=covs[-1],

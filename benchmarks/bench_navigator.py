@@ -1,0 +1,174 @@
+"""Time one navigator update on the real EX1811 pings (432 beams) and the server round trip.
+
+The map is gridded from the same survey at 50 m (``geofix grid``), the INS drift is
+simulated on the GNSS track (500 m initial error, seed 1). For every method the 50 pings
+are replayed; the time of each ``measure`` (one update: NIS, gating, the filter's
+update, the estimate) is recorded once the navigator has converged, with the default 64
+evenly spread beams per update and with all 432. The server round trip is the same pings
+sent through ``geofix serve`` over 127.0.0.1 (``geofix.client``); its overhead is the
+median, over pings, of the round trip minus the same update made offline just before by an
+identical navigator (which must give the very same estimate); ``server_cpu_ms`` is the
+same for the server's request handling called in-process (JSON in and out, checks, no
+socket), i.e. the work the server adds without the operating system's thread wake-ups,
+which dominate the round trip on a loaded machine. A yardstick (a 300 x 300
+matrix product, timed in the same run) shows how loaded the machine was.
+
+Usage: ``python benchmarks/bench_navigator.py [--methods pmf pf sitan] [--json]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from geofix.filters.online import NavigatorSettings
+from geofix.logs import read_mission
+from geofix.logs.gridmap import grid_log
+from geofix.maps import load_grid
+from geofix.maps.gridding import load_map_error
+from geofix.navigator import Navigator
+from geofix.replay import replay_inputs
+
+CELL_M = 50.0
+INITIAL_ERROR_M = 500.0
+SEED = 1
+NOISE_STD = 4.0
+
+
+def setup(folder: Path):
+    """``(grid, map_error, mission, inputs)`` of the benchmark."""
+    grid_log("builtin:ex1811", CELL_M, folder / "ex1811.nc")
+    grid = load_grid(folder / "ex1811.nc")
+    error = load_map_error(folder / "ex1811.nc")
+    mission = read_mission("builtin:ex1811", frame=grid.meta["projection"])
+    return grid, error, mission, replay_inputs(mission, None, INITIAL_ERROR_M, SEED)
+
+
+def yardstick_ms(repeat: int = 20) -> float:
+    """Median time of a 300 x 300 float64 matrix product, milliseconds."""
+    a = np.random.default_rng(0).standard_normal((300, 300))
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        a @ a
+        times.append(time.perf_counter() - t0)
+    return 1e3 * float(np.median(times))
+
+
+def update_times(grid, error, mission, inputs, method: str, beams) -> list[float]:
+    """Seconds of every ``measure`` made while the navigator was converged."""
+    settings = NavigatorSettings(noise_std=NOISE_STD, max_update_beams=beams)
+    nav = Navigator(grid, method, settings, seed=SEED, map_error=error)
+    nav.init(mission.times[0], inputs.indicated[0], inputs.sigma[0], inputs.heading[0])
+    out = []
+    for k in range(mission.n):
+        if k:
+            nav.motion(mission.times[k], inputs.indicated[k], inputs.heading[k])
+        t0 = time.perf_counter()
+        est = nav.measure(mission.times[k], mission.ping(k))
+        if est.status == "converged" and k > 0:
+            out.append(time.perf_counter() - t0)
+    return out
+
+
+def round_trip_times(grid, error, mission, inputs, method: str) -> tuple[list, list]:
+    """Per converged ping, seconds: the ``ping`` round trip over loopback (client encoding
+    included), the same update made offline by an identical navigator right before
+    (paired, so that a busy machine slows both alike), and the server's handling of the
+    same request line in-process."""
+    from geofix.client import Client, ping_message
+    from geofix.server import Session, serve_in_thread
+
+    settings = NavigatorSettings(noise_std=NOISE_STD)
+    offline = Navigator(grid, method, settings, seed=SEED, map_error=error)
+    session = Session(grid, method, settings, seed=SEED, map_error=error)
+    deg = np.rad2deg(inputs.heading)
+    rad = np.deg2rad(deg)
+    rtt, local, handled = [], [], []
+    server = serve_in_thread(grid, method, settings=settings, seed=SEED, map_error=error)
+    with server as addr, Client(*addr) as client:
+        client.init(mission.times[0], *inputs.indicated[0], inputs.sigma[0], deg[0])
+        offline.init(mission.times[0], inputs.indicated[0], inputs.sigma[0], rad[0])
+        session.handle(json.dumps(client_init(mission, inputs, deg)).encode())
+        for k in range(mission.n):
+            if k:
+                client.nav(mission.times[k], *inputs.indicated[k], deg[k])
+                offline.motion(mission.times[k], inputs.indicated[k], rad[k])
+                nav_msg = {"type": "nav", "t": float(mission.times[k])}
+                nav_msg.update(x=float(inputs.indicated[k, 0]), y=float(inputs.indicated[k, 1]))
+                session.handle(json.dumps({**nav_msg, "heading_deg": float(deg[k])}).encode())
+            t0 = time.perf_counter()
+            est = offline.measure(mission.times[k], mission.ping(k))
+            t1 = time.perf_counter()
+            reply = client.ping(mission.times[k], mission.ping(k))
+            t_reply = time.perf_counter()
+            line = json.dumps(ping_message(mission.times[k], mission.ping(k))).encode()
+            t2 = time.perf_counter()
+            in_process = session.handle(line)
+            t3 = time.perf_counter()
+            assert (in_process["x"], in_process["y"]) == (reply["x"], reply["y"])
+            assert (reply["x"], reply["y"]) == (est.position[0], est.position[1])
+            if reply["status"] == "converged" and k > 0:
+                local.append(t1 - t0)
+                rtt.append(t_reply - t1)
+                handled.append(t3 - t2)
+    return rtt, local, handled
+
+
+def client_init(mission, inputs, deg) -> dict:
+    """The ``init`` request of the benchmark's navigator."""
+    return {
+        "type": "init",
+        "t": float(mission.times[0]),
+        "x": float(inputs.indicated[0, 0]),
+        "y": float(inputs.indicated[0, 1]),
+        "sigma_m": float(inputs.sigma[0]),
+        "heading_deg": float(deg[0]),
+    }
+
+
+def run(methods: list[str]) -> dict:
+    """Median milliseconds per method: update (64 and 432 beams), round trip, overhead."""
+    with tempfile.TemporaryDirectory() as tmp:
+        grid, error, mission, inputs = setup(Path(tmp))
+        rows = {"yardstick_matmul_ms": yardstick_ms(), "methods": {}}
+        for method in methods:
+            update_times(grid, error, mission, inputs, method, 64)  # warm-up (numba, caches)
+            used = update_times(grid, error, mission, inputs, method, 64)
+            full = update_times(grid, error, mission, inputs, method, None)
+            rtt, local, handled = round_trip_times(grid, error, mission, inputs, method)
+            med = {
+                k: 1e3 * float(np.median(v)) if v else None
+                for k, v in (("update_ms", used), ("update_all_beams_ms", full))
+            }
+            med["round_trip_ms"] = 1e3 * float(np.median(rtt))
+            med["server_overhead_ms"] = 1e3 * float(np.median(np.subtract(rtt, local)))
+            med["server_cpu_ms"] = 1e3 * float(np.median(np.subtract(handled, local)))
+            med["converged_pings"] = len(used)
+            rows["methods"][method] = med
+    return rows
+
+
+def main() -> None:
+    """Command-line entry point."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--methods", nargs="*", default=["pmf", "pf", "sitan"])
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    args = parser.parse_args()
+    result = run(args.methods)
+    if args.json:
+        print(json.dumps(result))
+        return
+    print(f"yardstick (300x300 matmul): {result['yardstick_matmul_ms']:.2f} ms")
+    for method, row in result["methods"].items():
+        parts = [f"{k} {v:.2f}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()]
+        print(f"{method}: " + ", ".join(parts))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,108 @@
+"""A small blocking client of ``geofix serve`` (newline-delimited JSON over TCP).
+
+>>> with Client("127.0.0.1", 7010) as nav:                      # doctest: +SKIP
+...     nav.init(t=0.0, x=100.0, y=200.0, sigma_m=500.0)
+...     nav.nav(t=1.0, x=104.0, y=203.0, heading_deg=45.0)
+...     reply = nav.ping(t=1.0, beams=[[-50.0, 0.0, -1203.4], [50.0, 0.0, -1199.8]])
+...     reply["x"], reply["y"], reply["cov"], reply["status"]
+
+Every method sends one request and returns its one reply as a dict; a reply with
+``"ok": false`` raises :class:`ServerError` unless ``check=False``. Floats are sent with
+Python's shortest exact representation, so the server sees the very numbers given.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import socket
+
+import numpy as np
+
+from geofix.errors import GeofixError
+
+
+class ServerError(GeofixError):
+    """The server answered ``{"ok": false, "error": ...}``."""
+
+
+class Client:
+    """One connection (one navigator) to a ``geofix serve`` server.
+
+    Parameters
+    ----------
+    host : str
+        Server address.
+    port : int
+        Server port.
+    timeout : float
+        Seconds to wait for a reply.
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 7010, timeout: float = 30.0):
+        self._sock = socket.create_connection((host, port), timeout=timeout)
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._file = self._sock.makefile("rwb")
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the connection (the server drops its navigator)."""
+        for part in (self._file, self._sock):
+            with contextlib.suppress(OSError):
+                part.close()
+
+    def send_line(self, line: bytes) -> dict:
+        """Send one raw line (a newline is added) and return the reply."""
+        self._file.write(line.rstrip(b"\n") + b"\n")
+        self._file.flush()
+        return self.read_reply()
+
+    def read_reply(self) -> dict:
+        """Read one reply line."""
+        reply = self._file.readline()
+        if not reply:
+            raise ServerError("the server closed the connection")
+        return json.loads(reply)
+
+    def request(self, message: dict, check: bool = True) -> dict:
+        """Send one request object and return its reply."""
+        reply = self.send_line(json.dumps(message, allow_nan=False).encode())
+        if check and not reply.get("ok"):
+            raise ServerError(str(reply.get("error")))
+        return reply
+
+    def init(self, t: float, x: float, y: float, sigma_m: float, heading_deg=None, **kw):
+        """``init``: start the navigator at ``(x, y)`` metres with a prior ``sigma_m``."""
+        msg = {"type": "init", "t": float(t), "x": float(x), "y": float(y)}
+        msg["sigma_m"] = float(sigma_m)
+        if heading_deg is not None:
+            msg["heading_deg"] = float(heading_deg)
+        return self.request(msg, **kw)
+
+    def nav(self, t: float, x: float, y: float, heading_deg: float, **kw) -> dict:
+        """``nav``: the INS-indicated position (metres, the map's frame) and heading."""
+        msg = {"type": "nav", "t": float(t), "x": float(x), "y": float(y)}
+        msg["heading_deg"] = float(heading_deg)
+        return self.request(msg, **kw)
+
+    def ping(self, t: float, beams, **kw) -> dict:
+        """``ping``: beams ``(b, 3)`` ``(across_m, along_m, value)``; NaN values go as null."""
+        return self.request(ping_message(t, beams), **kw)
+
+    def estimate(self, **kw) -> dict:
+        """``estimate``: the current estimate."""
+        return self.request({"type": "estimate"}, **kw)
+
+
+def ping_message(t: float, beams) -> dict:
+    """The ``ping`` request for beams ``(b, 3)`` (NaN values become null)."""
+    rows = [
+        [float(a), float(b), None if not np.isfinite(v) else float(v)]
+        for a, b, v in np.asarray(beams, dtype=float)
+    ]
+    return {"type": "ping", "t": float(t), "beams": rows}

@@ -1,0 +1,651 @@
+"""The online navigator core: one recursive filter driven one input at a time.
+
+:class:`OnlineFilter` wraps any filter of the per-step protocol of
+:mod:`geofix.filters.base` (``initialize`` / ``predict`` / ``update`` / ``estimate``) and
+owns everything a navigator adds around it:
+
+- **the two steps** -- :meth:`OnlineFilter.predict` (a :class:`Motion`) and
+  :meth:`OnlineFilter.update` (an :class:`Observation`, returns an :class:`Estimate`).
+  :func:`geofix.filters.base.run_filter` (every campaign trial) and a replay or a server
+  connection (through the raw-input methods :meth:`~OnlineFilter.motion` and
+  :meth:`~OnlineFilter.measure`) all call these two, so there is one time step in geofix;
+- **input validation** -- times in order, finite positions, a velocity limit between
+  navigation records, a ping within ``max_pose_gap_s`` of the pose it is placed with,
+  bounded beam counts; a bad input raises :class:`~geofix.errors.InputError` and leaves
+  the state untouched;
+- **start-up gating** -- the start box (``+-2 sigma``) must lie mostly on valid map data;
+- **NIS** -- the normalised innovation squared of every ping, per beam, against the
+  predicted measurement spread of the current posterior (unscented sigma points of its
+  mean and covariance): ``mean_b r_b^2 / (R_b + S_b)``, about 1 for a consistent filter;
+- **gating** -- a ping whose NIS exceeds ``gate_nis`` (after the first accepted ping) is
+  rejected as an outlier and not folded in;
+- **status** -- ``initialising`` until a ping is accepted, then ``converging``, then
+  ``converged`` once the posterior's largest 1-sigma is below ``converge_sigma_m`` and the
+  MMSE (mean) and MLE (mode) positions are within ``converge_mle_m`` of each other (the
+  convergence test of MBARI's TRN, Stuckey et al. / Meduna 2011, without its
+  KL-divergence term);
+- **lost and re-initialisation** (TRN's rules) -- when the mean NIS over the last
+  ``nis_window`` pings exceeds ``nis_limit``, when no ping has been accepted for
+  ``outage_s`` (a measurement or bottom-lock outage), or when the posterior grows beyond
+  ``max_sigma_factor`` times the prior (low information), the status is ``lost`` and the
+  filter is re-initialised around the current navigation plus the last good navigation
+  offset (estimate minus navigation at the last converged ping) with the prior's sigma.
+
+All randomness goes through the one generator handed in.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from geofix.errors import ConfigError, InputError, MatchError
+from geofix.filters.base import Motion, Observation
+from geofix.maps.grid import Grid
+from geofix.measurement import map_error_variance, predict_measurements
+from geofix.problem import MatchProblem
+
+STATUSES = ("initialising", "converging", "converged", "lost")
+
+
+@dataclass(frozen=True)
+class NavigatorSettings:
+    """Rules of the online navigator (defaults are documented choices).
+
+    Parameters
+    ----------
+    noise_std : float
+        Measurement noise 1-sigma per beam, map units, when a ping brings none.
+    process_noise_m2_s : float
+        Per-axis variance the navigation error gains per second, m^2/s, when a motion
+        brings no ``process_var``.
+    gate_nis : float or None
+        Reject a ping whose per-beam NIS exceeds this (None: no gating).
+    nis_window : int
+        Pings in the NIS window (0: no NIS-window rule).
+    nis_limit : float
+        Lost when the window's mean NIS exceeds this.
+    outage_s : float or None
+        Lost after this long without an accepted ping, seconds (None: never).
+    max_sigma_factor : float or None
+        Lost when the posterior's largest 1-sigma exceeds this times the prior sigma.
+    reinit : bool
+        Re-initialise when lost (False: only report ``lost``).
+    min_beams : int
+        A ping with fewer valid beams is not used (it counts towards an outage).
+    max_update_beams : int or None
+        Use at most this many valid beams of a ping, evenly spread across the swath
+        (None: all of them).
+    converge_sigma_m : float or None
+        Largest posterior 1-sigma for ``converged``, metres (None: 2 map cells).
+    converge_mle_m : float or None
+        Largest MMSE-to-MLE distance for ``converged``, metres (None: ``max(10 m, 1 cell)``).
+    min_start_share : float
+        Share of a 9 x 9 lattice over the ``+-2 sigma`` start box that must read valid map
+        data for :meth:`OnlineFilter.init` (start-up gating).
+    max_pose_gap_s : float or None
+        Largest time between a ping and the navigation record it is placed with, seconds.
+    max_speed_m_s : float or None
+        Largest speed implied by two navigation records, m/s.
+    max_beams : int
+        Most beams a ping may carry.
+    mount_offset_m : tuple of float
+        The sensor's mounting offset from the navigation reference point, ``(across,
+        along)`` metres in the body frame (starboard, forward), added to every beam's
+        offsets.
+    """
+
+    noise_std: float = 2.0
+    process_noise_m2_s: float = 0.5
+    gate_nis: float | None = 25.0
+    nis_window: int = 8
+    nis_limit: float = 9.0
+    outage_s: float | None = 120.0
+    max_sigma_factor: float | None = 3.0
+    reinit: bool = True
+    min_beams: int = 3
+    max_update_beams: int | None = 64
+    converge_sigma_m: float | None = None
+    converge_mle_m: float | None = None
+    min_start_share: float = 0.2
+    max_pose_gap_s: float | None = 5.0
+    max_speed_m_s: float | None = 30.0
+    max_beams: int = 4096
+    mount_offset_m: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        positive = ("noise_std", "nis_limit", "max_beams", "min_beams")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"navigator: {name} must be positive, got {getattr(self, name)}")
+        optional = (
+            "gate_nis",
+            "outage_s",
+            "max_sigma_factor",
+            "max_update_beams",
+            "converge_sigma_m",
+            "converge_mle_m",
+            "max_pose_gap_s",
+            "max_speed_m_s",
+        )
+        for name in optional:
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                raise ConfigError(f"navigator: {name} must be positive or None, got {value}")
+        if self.nis_window < 0 or self.process_noise_m2_s < 0:
+            raise ConfigError("navigator: nis_window and process_noise_m2_s must be >= 0")
+        if not 0.0 <= self.min_start_share <= 1.0:
+            raise ConfigError("navigator: min_start_share must be in [0, 1]")
+        mount = np.asarray(self.mount_offset_m, dtype=float)
+        if mount.shape != (2,) or not np.isfinite(mount).all():
+            raise ConfigError(
+                "navigator: mount_offset_m must be two finite numbers (across, along)"
+            )
+
+    @classmethod
+    def passive(cls) -> NavigatorSettings:
+        """No gating, no re-initialisation, no input limits: a campaign trial's filter."""
+        return cls(
+            gate_nis=None,
+            nis_window=0,
+            outage_s=None,
+            max_sigma_factor=None,
+            reinit=False,
+            min_beams=1,
+            min_start_share=0.0,
+            max_pose_gap_s=None,
+            max_speed_m_s=None,
+            max_beams=10**9,
+            max_update_beams=None,
+        )
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> NavigatorSettings:
+        """Settings from a mapping; unknown keys are a ConfigError naming them."""
+        values = dict(values or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ConfigError(
+                f"navigator: unknown setting(s) {', '.join(unknown)} (known: {', '.join(known)})"
+            )
+        return cls(**values)
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """The navigator's answer after an input.
+
+    Parameters
+    ----------
+    t : float
+        Time of the last input, seconds.
+    position : numpy.ndarray
+        ``(2,)`` MMSE (posterior mean) position, metres.
+    covariance : numpy.ndarray
+        ``(2, 2)`` posterior covariance, m^2.
+    mle : numpy.ndarray
+        ``(2,)`` MLE (posterior mode) position, metres.
+    status : str
+        One of :data:`STATUSES`.
+    nis : float
+        Per-beam NIS of the last ping (NaN when not computed).
+    accepted : bool
+        The last ping was folded in (False: gated out, too few beams, or no ping yet).
+    pings, rejected, reinits : int
+        Pings seen, pings gated out, re-initialisations so far.
+    """
+
+    t: float
+    position: np.ndarray
+    covariance: np.ndarray
+    mle: np.ndarray
+    status: str
+    nis: float = float("nan")
+    accepted: bool = False
+    pings: int = 0
+    rejected: int = 0
+    reinits: int = 0
+
+    @property
+    def sigma_m(self) -> float:
+        """Largest 1-sigma of the covariance, metres."""
+        return float(np.sqrt(max(np.linalg.eigvalsh(self.covariance).max(), 0.0)))
+
+    def to_dict(self) -> dict:
+        """JSON-ready mapping: ``t, x, y, cov, status, mle, nis, accepted, pings, reinits``."""
+        return {
+            "t": float(self.t),
+            "x": float(self.position[0]),
+            "y": float(self.position[1]),
+            "cov": [[float(v) for v in row] for row in self.covariance],
+            "status": self.status,
+            "mle": [float(self.mle[0]), float(self.mle[1])],
+            "nis": None if not np.isfinite(self.nis) else float(self.nis),
+            "accepted": bool(self.accepted),
+            "pings": int(self.pings),
+            "rejected": int(self.rejected),
+            "reinits": int(self.reinits),
+        }
+
+
+def start_problem(grid: Grid, t: float, position, sigma_m: float, heading: float) -> MatchProblem:
+    """A one-sample :class:`MatchProblem` carrying a prior for ``filter.initialize``.
+
+    ``measured`` holds one placeholder reading of 0 (filters check that a problem has
+    some finite reading; :meth:`OnlineFilter.init` never updates with it).
+    """
+    return MatchProblem(
+        grid=grid,
+        indicated=np.asarray(position, dtype=float).reshape(1, 2),
+        heading=np.array([float(heading)]),
+        offsets=np.zeros((1, 2)),
+        measured=np.zeros((1, 1)),
+        sigma_position=np.array([float(sigma_m)]),
+        times=np.array([float(t)]),
+    )
+
+
+def mode_position(filt, state) -> np.ndarray:
+    """MLE position ``(2,)`` of a filter state, metres.
+
+    The filter's own ``mode(state)`` when it has one; else the highest-weight particle
+    (states with ``particles`` and ``log_weight``) or node (states with a point-mass
+    ``frame`` and ``log_weight``); else the mean.
+    """
+    mode = getattr(filt, "mode", None)
+    if callable(mode):
+        return np.asarray(mode(state), dtype=float)
+    log_weight = getattr(state, "log_weight", None)
+    if log_weight is not None and hasattr(state, "particles"):
+        return np.asarray(state.particles[int(np.argmax(log_weight))], dtype=float)
+    if log_weight is not None and hasattr(state, "frame"):
+        i, j = np.unravel_index(int(np.argmax(log_weight)), log_weight.shape)
+        u = np.array([i, j]) - 0.5 * (np.array(log_weight.shape) - 1)
+        centre, axes, spacing = state.frame
+        return np.asarray(centre + axes @ (u * spacing), dtype=float)
+    return np.asarray(filt.estimate(state)[0], dtype=float)
+
+
+def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
+    """Per-beam NIS of ``obs`` against the posterior ``N(mean, cov)`` (NaN if no beam).
+
+    The predicted reading and its spread over the posterior come from the five
+    unscented sigma points ``mean``, ``mean +- sqrt(3) L_i`` (``L L^T = cov``, weights
+    1/3 and 1/6): ``mean_b (y_b - yhat_b)^2 / (R_b + S_b)``.
+    """
+    cov = 0.5 * (cov + cov.T) + 1e-9 * np.eye(2)
+    try:
+        chol = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        chol = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * np.eye(2)
+    spread = np.sqrt(3.0) * chol.T
+    points = np.vstack([mean, mean + spread, mean - spread])
+    weights = np.array([1 / 3, 1 / 6, 1 / 6, 1 / 6, 1 / 6])
+    pred = predict_measurements(grid, points, obs.heading, obs.offsets)
+    use = np.isfinite(obs.values) & np.isfinite(pred).all(axis=0)
+    if not use.any():
+        return float("nan")
+    p = pred[:, use]
+    yhat = weights @ p
+    s = weights @ (p - yhat) ** 2
+    r = np.broadcast_to(np.asarray(obs.noise_var, dtype=float), obs.values.shape)[use]
+    return float(np.mean((obs.values[use] - yhat) ** 2 / (r + s)))
+
+
+class OnlineFilter:
+    """A recursive filter run one input at a time, with a navigator's rules.
+
+    Parameters
+    ----------
+    filt
+        A filter of the per-step protocol (``initialize``, ``predict``, ``update``,
+        ``estimate``), e.g. :class:`geofix.filters.pmf.Pmf`.
+    grid : Grid
+        The map.
+    settings : NavigatorSettings, optional
+        The navigator's rules (default :class:`NavigatorSettings`).
+    rng : numpy.random.Generator or None
+        Source of every random draw of the filter (None only for deterministic filters,
+        as :func:`~geofix.filters.base.run_filter` allows).
+    map_error : Grid, optional
+        The map's per-cell standard deviation layer (added as map-error variance to the
+        measurement variance at each beam's footprint).
+    """
+
+    def __init__(self, filt, grid: Grid, settings=None, rng=None, map_error=None) -> None:
+        self.filter = filt
+        self.grid = grid
+        self.settings = settings or NavigatorSettings()
+        self.rng = rng
+        self.map_error = map_error
+        self.state = None
+        self._nis = deque(maxlen=max(self.settings.nis_window, 1))
+        self._pose: tuple | None = None  # (t, position (2,), heading)
+        self._t_last: float | None = None
+        self._t_accepted = 0.0
+        self._prior_sigma = 0.0
+        self._good_offset = np.zeros(2)
+        self._pings = self._rejected = self._reinits = self._accepted_count = 0
+        self._last: Estimate | None = None
+
+    # ------------------------------------------------------------------ the two steps
+    def start(self, problem: MatchProblem) -> None:
+        """Initialise from a problem's prior (its first sample), as a campaign trial does."""
+        self.state = self.filter.initialize(problem, self.rng)
+        t0 = float(problem.times[0])
+        self._pose = (t0, np.asarray(problem.indicated[0], float), float(problem.heading[0]))
+        self._t_last = self._t_accepted = t0
+        self._prior_sigma = float(problem.sigma_position[0])
+        self._last = None
+
+    def predict(self, motion: Motion) -> None:
+        """Apply the INS motion of one step to the posterior."""
+        self._require_started()
+        self.state = self.filter.predict(self.state, motion, self.rng)
+        self._last = None
+
+    def update(self, obs: Observation, t: float | None = None) -> Estimate:
+        """Fold in one ping (gated by its NIS), update the status, re-initialise if lost."""
+        self._require_started()
+        t = self._pose[0] if t is None else float(t)
+        self._pings += 1
+        s = self.settings
+        nis = float("nan")
+        accepted = int(np.isfinite(obs.values).sum()) >= s.min_beams
+        if accepted and (s.gate_nis is not None or s.nis_window > 0):
+            mean, cov = self.filter.estimate(self.state)
+            nis = innovation_nis(self.grid, mean, cov, obs)
+            gated = s.gate_nis is not None and self._accepted_count > 0
+            if gated and np.isfinite(nis) and nis > s.gate_nis:
+                accepted = False
+                self._rejected += 1
+            if np.isfinite(nis) and s.nis_window > 0:
+                self._nis.append(nis)
+        if accepted:
+            self.state = self.filter.update(self.state, obs, self.grid, self.rng)
+            self._accepted_count += 1
+            self._t_accepted = t
+        estimate = self._describe(t, nis, accepted)
+        if estimate.status == "converged":
+            self._good_offset = estimate.position - self._pose[1]
+        reason = self._lost_reason(estimate, t)
+        if reason is not None:
+            estimate = self._lose(estimate, t)
+        self._last = estimate
+        return estimate
+
+    # ------------------------------------------------------------------ raw inputs
+    def init(self, t: float, position, sigma_m: float, heading: float = 0.0) -> Estimate:
+        """Start (or restart) at ``position`` (metres) with a per-axis prior ``sigma_m``.
+
+        Raises
+        ------
+        InputError
+            Non-finite values, a non-positive sigma, or a start box mostly off valid map
+            data (start-up gating).
+        """
+        t, heading = _finite(t, "t"), _finite(heading, "heading")
+        position = _point(position, "position")
+        sigma_m = _finite(sigma_m, "sigma_m")
+        if sigma_m <= 0:
+            raise InputError(f"init: sigma_m must be positive, got {sigma_m:g}")
+        self._check_start_box(position, sigma_m)
+        try:
+            state = self.filter.initialize(
+                start_problem(self.grid, t, position, sigma_m, heading), self.rng
+            )
+        except MatchError as exc:
+            raise InputError(f"init: {exc}") from None
+        self.state = state
+        self._pose = (t, position, heading)
+        self._t_last = self._t_accepted = t
+        self._prior_sigma = sigma_m
+        self._good_offset = np.zeros(2)
+        self._nis.clear()
+        self._pings = self._rejected = self._reinits = self._accepted_count = 0
+        self._last = None
+        return self.estimate()
+
+    def motion(self, t: float, position, heading: float, process_var: float | None = None):
+        """A navigation record: the INS-indicated position (metres) and heading (radians).
+
+        The posterior moves by the change of the indicated position since the previous
+        record; its per-axis variance grows by ``process_var`` (m^2; default
+        ``process_noise_m2_s`` times the elapsed time).
+
+        Raises
+        ------
+        InputError
+            Before :meth:`init`, out of time order, non-finite, or faster than
+            ``max_speed_m_s``.
+        """
+        self._require_started()
+        t, heading = _finite(t, "t"), _finite(heading, "heading")
+        position = _point(position, "position")
+        t_prev, pos_prev, _ = self._pose
+        dt = t - t_prev
+        if dt < 0 or (self._t_last is not None and t < self._t_last):
+            raise InputError(f"nav at t = {t:g} s is before the previous input ({self._t_last:g})")
+        displacement = position - pos_prev
+        step = float(np.hypot(*displacement))
+        vmax = self.settings.max_speed_m_s
+        if vmax is not None and step > vmax * dt + 1e-6:
+            raise InputError(
+                f"nav at t = {t:g} s moves {step:.4g} m in {dt:.4g} s (limit {vmax:g} m/s)"
+            )
+        if process_var is None:
+            process_var = max(self.settings.process_noise_m2_s * dt, 1e-6)
+        elif not (np.isfinite(process_var) and process_var >= 0):
+            raise InputError(f"nav: process_var must be finite and >= 0, got {process_var}")
+        self.predict(Motion(displacement, float(dt), float(process_var)))
+        self._pose = (t, position, heading)
+        self._t_last = t
+        if self._outage(t):
+            self._last = self._lose(self._describe(t, float("nan"), False), t)
+        return self.estimate()
+
+    def measure(self, t: float, beams, noise_var=None) -> Estimate:
+        """A ping: ``beams`` ``(b, 3)`` rows ``(across_m, along_m, value)``.
+
+        Values may be NaN (missing beam); offsets must be finite. The ping is placed with
+        the last navigation record, which must be within ``max_pose_gap_s``.
+
+        Parameters
+        ----------
+        t : float
+            Ping time, seconds (not before the previous input).
+        beams : array_like
+            ``(b, 3)`` across / along offsets (metres) and measured values (map units).
+        noise_var : float or array_like, optional
+            Measurement variance, map units squared, scalar or ``(b,)``; default
+            ``noise_std^2``. The map's per-cell error variance is added to it.
+
+        Raises
+        ------
+        InputError
+            Before :meth:`init`, out of order, far from the last pose, or malformed beams.
+        """
+        self._require_started()
+        t = _finite(t, "t")
+        if self._t_last is not None and t < self._t_last:
+            raise InputError(f"ping at t = {t:g} s is before the previous input ({self._t_last:g})")
+        t_pose, position, heading = self._pose
+        gap = self.settings.max_pose_gap_s
+        if gap is not None and abs(t - t_pose) > gap:
+            raise InputError(
+                f"ping at t = {t:g} s is {abs(t - t_pose):.3g} s from the last nav "
+                f"(at most {gap:g} s)"
+            )
+        beams = self._beams(beams)
+        offsets, values = beams[:, :2], beams[:, 2]
+        if any(self.settings.mount_offset_m):
+            offsets = offsets + np.asarray(self.settings.mount_offset_m, dtype=float)
+        var = self._noise_var(noise_var, values.shape[0])
+        offsets, values, var = self._thin(offsets, values, var)
+        if self.map_error is not None:
+            mean, _ = self.filter.estimate(self.state)
+            var = var + map_error_variance(self.map_error, mean, heading, offsets)
+        obs = Observation(values, position, heading, offsets, var, self._pings)
+        self._t_last = t
+        return self.update(obs, t)
+
+    def estimate(self) -> Estimate:
+        """The current estimate (the last one returned, or one of the current state)."""
+        self._require_started()
+        if self._last is None:
+            self._last = self._describe(self._t_last, float("nan"), False)
+        return self._last
+
+    # ------------------------------------------------------------------ rules
+    def _describe(self, t: float, nis: float, accepted: bool) -> Estimate:
+        mean, cov = self.filter.estimate(self.state)
+        mle = mode_position(self.filter, self.state)
+        mean, cov = np.asarray(mean, dtype=float), np.asarray(cov, dtype=float)
+        status = "initialising" if self._accepted_count == 0 else "converging"
+        if status == "converging" and self._converged(mean, cov, mle):
+            status = "converged"
+        return Estimate(
+            t=float(t),
+            position=mean,
+            covariance=cov,
+            mle=mle,
+            status=status,
+            nis=nis,
+            accepted=accepted,
+            pings=self._pings,
+            rejected=self._rejected,
+            reinits=self._reinits,
+        )
+
+    def _converged(self, mean, cov, mle) -> bool:
+        cell = self.grid.cell_size
+        s = self.settings
+        sigma_max = s.converge_sigma_m if s.converge_sigma_m is not None else 2.0 * cell
+        mle_max = s.converge_mle_m if s.converge_mle_m is not None else max(10.0, cell)
+        sigma = np.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0))
+        return sigma <= sigma_max and float(np.hypot(*(mean - mle))) <= mle_max
+
+    def _lost_reason(self, estimate: Estimate, t: float) -> str | None:
+        s = self.settings
+        window = s.nis_window > 0 and len(self._nis) == s.nis_window
+        if window and float(np.mean(self._nis)) > s.nis_limit:
+            return "nis"
+        if self._outage(t):
+            return "outage"
+        if s.max_sigma_factor is not None and estimate.sigma_m > s.max_sigma_factor * max(
+            self._prior_sigma, self.grid.cell_size
+        ):
+            return "information"
+        return None
+
+    def _outage(self, t: float) -> bool:
+        s = self.settings
+        return s.outage_s is not None and t - self._t_accepted > s.outage_s
+
+    def _lose(self, estimate: Estimate, t: float) -> Estimate:
+        """Report ``lost``; re-initialise around the navigation plus the last good offset."""
+        lost = Estimate(**{**_fields(estimate), "status": "lost"})
+        if not self.settings.reinit:
+            return lost
+        _, position, heading = self._pose
+        centre = position + self._good_offset
+        try:
+            self.state = self.filter.initialize(
+                start_problem(self.grid, t, centre, self._prior_sigma, heading), self.rng
+            )
+        except MatchError:
+            return lost  # the restart box is off the map: keep the old posterior, stay lost
+        self._reinits += 1
+        self._accepted_count = 0
+        self._t_accepted = t
+        self._nis.clear()
+        return Estimate(**{**_fields(lost), "reinits": self._reinits})
+
+    # ------------------------------------------------------------------ checks
+    def _require_started(self) -> None:
+        if self.state is None:
+            raise InputError("no init yet: send init (t, x, y, sigma_m) first")
+
+    def _check_start_box(self, position: np.ndarray, sigma_m: float) -> None:
+        share_needed = self.settings.min_start_share
+        if share_needed <= 0:
+            return
+        u = np.linspace(-2.0 * sigma_m, 2.0 * sigma_m, 9)
+        gx, gy = np.meshgrid(position[0] + u, position[1] + u)
+        share = float(np.isfinite(self.grid.sample(gx, gy)).mean())
+        if share < share_needed:
+            raise InputError(
+                f"init: only {share:.0%} of the +-2 sigma start box around "
+                f"({position[0]:.1f}, {position[1]:.1f}) m lies on valid map data "
+                f"(need {share_needed:.0%})"
+            )
+
+    def _beams(self, beams) -> np.ndarray:
+        try:
+            arr = np.asarray(beams, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError("ping: beams must be a list of [across_m, along_m, value]") from None
+        if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] < 1:
+            raise InputError(f"ping: beams must have shape (b, 3), got {arr.shape}")
+        if arr.shape[0] > self.settings.max_beams:
+            raise InputError(
+                f"ping: {arr.shape[0]} beams, more than max_beams = {self.settings.max_beams}"
+            )
+        if not np.isfinite(arr[:, :2]).all() or np.isinf(arr[:, 2]).any():
+            raise InputError("ping: beam offsets must be finite and values finite or NaN")
+        return arr
+
+    def _noise_var(self, noise_var, beams: int):
+        if noise_var is None:
+            return self.settings.noise_std**2
+        var = np.asarray(noise_var, dtype=float)
+        if var.shape not in ((), (beams,)) or not (np.isfinite(var).all() and (var >= 0).all()):
+            raise InputError(f"ping: noise_var must be a number or ({beams},) values >= 0")
+        return np.maximum(var, 1e-12) if var.ndim else max(float(var), 1e-12)
+
+    def _thin(self, offsets, values, var):
+        limit = self.settings.max_update_beams
+        valid = np.flatnonzero(np.isfinite(values))
+        if limit is None or valid.size <= limit:
+            return offsets, values, var
+        keep = valid[np.linspace(0, valid.size - 1, limit).round().astype(int)]
+        var = var[keep] if np.ndim(var) else var
+        return offsets[keep], values[keep], var
+
+
+def _fields(estimate: Estimate) -> dict:
+    return {f.name: getattr(estimate, f.name) for f in fields(estimate)}
+
+
+def _finite(value, name: str) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a number, got {type(value).__name__}") from None
+    if not np.isfinite(out):
+        raise InputError(f"{name} must be finite, got {out}")
+    return out
+
+
+def _point(value, name: str) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be two numbers (x, y)") from None
+    if arr.shape != (2,) or not np.isfinite(arr).all():
+        raise InputError(f"{name} must be two finite numbers (x, y), got {value!r}")
+    return arr
+
+
+__all__ = [
+    "STATUSES",
+    "Estimate",
+    "NavigatorSettings",
+    "OnlineFilter",
+    "innovation_nis",
+    "mode_position",
+    "start_problem",
+]

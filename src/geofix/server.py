@@ -1,0 +1,291 @@
+"""``geofix serve``: the navigator over TCP, newline-delimited JSON (asyncio).
+
+One :class:`geofix.Navigator` per connection; every request line gets exactly one reply
+line, in order. Requests (UTF-8 JSON objects, one per line, at most
+:data:`MAX_LINE_BYTES` bytes):
+
+- ``{"type": "init", "t": s, "x": m, "y": m, "sigma_m": m}`` (optional ``heading_deg``);
+- ``{"type": "nav", "t": s, "x": m, "y": m, "heading_deg": deg}`` -- the INS-indicated
+  position in the map's metric frame (``lon`` / ``lat`` in degrees instead of ``x`` /
+  ``y`` when the map was projected from lon/lat);
+- ``{"type": "ping", "t": s, "beams": [[across_m, along_m, value], ...]}`` (``value``
+  null for a missing beam);
+- ``{"type": "estimate"}``.
+
+Replies: ``{"ok": true, "type": ..., "t", "x", "y", "cov": [[..], [..]], "status", "mle",
+"nis", "accepted", "pings", "rejected", "reinits"}`` (the estimate after the request), or
+``{"ok": false, "error": "one line naming the problem"}``. A malformed, out-of-order or
+oversized message gets an error reply and the connection stays usable; a client that
+disconnects mid-stream only ends its own connection.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import threading
+
+import numpy as np
+
+from geofix.errors import GeofixError
+from geofix.maps.grid import Grid
+
+MAX_LINE_BYTES = 1 << 20
+"""Longest request line, bytes (1 MiB: about 30 000 beams of three numbers)."""
+READ_CHUNK = 1 << 16
+REQUEST_TYPES = ("init", "nav", "ping", "estimate")
+
+
+class RequestError(GeofixError):
+    """A request the server answers with ``{"ok": false, "error": ...}``."""
+
+
+def _reject_constant(name: str):
+    raise RequestError(f"{name} is not valid JSON (use null for a missing value)")
+
+
+def parse_request(line: bytes) -> dict:
+    """Decode one request line into a dict with a known ``type``.
+
+    Raises
+    ------
+    RequestError
+        Not UTF-8, not JSON, not an object, or an unknown ``type``.
+    """
+    try:
+        text = line.decode("utf-8")
+    except UnicodeDecodeError:
+        raise RequestError("request is not UTF-8 text") from None
+    if not text.strip():
+        raise RequestError("empty request line")
+    try:
+        request = json.loads(text, parse_constant=_reject_constant)
+    except RequestError:
+        raise
+    except (ValueError, RecursionError) as exc:
+        raise RequestError(f"request is not JSON: {str(exc).splitlines()[0][:120]}") from None
+    if not isinstance(request, dict):
+        raise RequestError("request must be a JSON object")
+    kind = request.get("type")
+    if kind not in REQUEST_TYPES:
+        raise RequestError(
+            f"unknown request type {str(kind)[:40]!r}; use {', '.join(REQUEST_TYPES)}"
+        )
+    return request
+
+
+def _number(request: dict, key: str) -> float:
+    value = request.get(key)
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        shown = "missing" if key not in request else type(value).__name__
+        raise RequestError(f"{request['type']}: {key} must be a number ({shown})")
+    out = float(value)
+    if not math.isfinite(out):
+        raise RequestError(f"{request['type']}: {key} must be finite")
+    return out
+
+
+_NUMBER_OR_NULL = frozenset({int, float, type(None)})
+
+
+def _beams(request: dict, max_beams: int) -> np.ndarray:
+    beams = request.get("beams")
+    if not isinstance(beams, list) or not beams:
+        raise RequestError("ping: beams must be a non-empty list of [across_m, along_m, value]")
+    if len(beams) > max_beams:
+        raise RequestError(f"ping: {len(beams)} beams, more than max_beams = {max_beams}")
+    if (
+        all(type(row) is list and len(row) == 3 for row in beams)
+        and {type(v) for row in beams for v in row} <= _NUMBER_OR_NULL
+    ):
+        out = np.array(beams, dtype=float)  # null becomes NaN (offsets are checked later)
+        return out
+    out = np.empty((len(beams), 3))
+    for i, row in enumerate(beams):
+        if not isinstance(row, list) or len(row) != 3:
+            raise RequestError(f"ping: beam {i} must be [across_m, along_m, value]")
+        for j, v in enumerate(row):
+            if v is None and j == 2:
+                out[i, j] = np.nan
+            elif isinstance(v, bool) or not isinstance(v, int | float):
+                raise RequestError(f"ping: beam {i} holds a {type(v).__name__}, not a number")
+            else:
+                out[i, j] = v
+    return out
+
+
+class Session:
+    """One connection's navigator and the handling of its requests.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map (its ``meta["projection"]`` converts ``lon`` / ``lat`` requests).
+    method : str
+        Recursive method spec.
+    settings : dict or NavigatorSettings, optional
+        Navigator settings.
+    seed : int
+        Seed of the connection's navigator.
+    map_error : Grid, optional
+        Per-cell map standard deviation.
+    """
+
+    def __init__(self, grid: Grid, method: str, settings=None, seed: int = 0, map_error=None):
+        from geofix.navigator import Navigator
+
+        self.navigator = Navigator(grid, method, settings, seed=seed, map_error=map_error)
+        self.grid = grid
+        self._proj = None
+
+    def handle(self, line: bytes) -> dict:
+        """The reply to one request line (never raises)."""
+        try:
+            request = parse_request(line)
+            estimate = getattr(self, f"_{request['type']}")(request)
+            return {"ok": True, "type": request["type"], **estimate.to_dict()}
+        except GeofixError as exc:
+            return {"ok": False, "error": str(exc).splitlines()[0] if str(exc) else "error"}
+        except Exception as exc:  # a bug must not end the connection
+            return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"[:200]}
+
+    def _position(self, request: dict) -> tuple[float, float]:
+        if "x" in request or "y" in request or "lon" not in request:
+            return _number(request, "x"), _number(request, "y")
+        lon, lat = _number(request, "lon"), _number(request, "lat")
+        frame = self.grid.meta.get("projection")
+        if not frame:
+            raise RequestError(f"{request['type']}: the map is metric; send x and y")
+        if self._proj is None:
+            from pyproj import Proj
+
+            self._proj = Proj(frame)
+        x, y = self._proj(lon, lat)
+        return float(x), float(y)
+
+    def _init(self, request: dict):
+        t = _number(request, "t")
+        xy = self._position(request)
+        sigma = _number(request, "sigma_m")
+        heading = _number(request, "heading_deg") if "heading_deg" in request else 0.0
+        return self.navigator.init(t, xy, sigma, float(np.deg2rad(heading)))
+
+    def _nav(self, request: dict):
+        t = _number(request, "t")
+        xy = self._position(request)
+        heading = float(np.deg2rad(_number(request, "heading_deg")))
+        return self.navigator.motion(t, xy, heading)
+
+    def _ping(self, request: dict):
+        beams = _beams(request, self.navigator.settings.max_beams)
+        return self.navigator.measure(_number(request, "t"), beams)
+
+    def _estimate(self, request: dict):
+        return self.navigator.estimate()
+
+
+async def _lines(reader: asyncio.StreamReader):
+    """Yield request lines; an oversized line yields ``None`` once (its bytes dropped)."""
+    buffer = bytearray()
+    dropping = False
+    while True:
+        chunk = await reader.read(READ_CHUNK)
+        if not chunk:
+            return
+        buffer += chunk
+        while True:
+            cut = buffer.find(b"\n")
+            if cut < 0:
+                if len(buffer) > MAX_LINE_BYTES:
+                    dropping = True
+                    buffer.clear()
+                break
+            line = bytes(buffer[:cut])
+            del buffer[: cut + 1]
+            if dropping or len(line) > MAX_LINE_BYTES:
+                dropping = False
+                yield None
+            else:
+                yield line
+
+
+def _encode(reply: dict) -> bytes:
+    """One reply line; a reply that is not valid JSON (a NaN) becomes an error reply."""
+    try:
+        text = json.dumps(reply, allow_nan=False, separators=(",", ":"))
+    except (TypeError, ValueError) as exc:
+        text = json.dumps({"ok": False, "error": f"internal error: reply not JSON ({exc})"})
+    return (text + "\n").encode()
+
+
+OVERSIZED = {"ok": False, "error": f"request line longer than {MAX_LINE_BYTES} bytes"}
+
+
+class NavigatorServer:
+    """The asyncio TCP server: :meth:`start`, then :meth:`stop` (or ``serve_forever``)."""
+
+    def __init__(self, grid, method, settings=None, seed=0, map_error=None):
+        self.grid, self.method, self.settings = grid, method, settings
+        self.seed, self.map_error = seed, map_error
+        Session(grid, method, settings, seed, map_error)  # refuse a bad method or setting now
+        self._server: asyncio.base_events.Server | None = None
+        self.connections = 0
+
+    async def start(self, host: str = "127.0.0.1", port: int = 0) -> int:
+        """Listen on ``host:port`` (0: any free port); return the port."""
+        self._server = await asyncio.start_server(self._serve, host, port)
+        return int(self._server.sockets[0].getsockname()[1])
+
+    async def stop(self) -> None:
+        """Stop listening and close the server."""
+        if self._server is not None:
+            self._server.close()
+            await self._server.wait_closed()
+
+    async def _serve(self, reader, writer) -> None:
+        self.connections += 1
+        session = Session(self.grid, self.method, self.settings, self.seed, self.map_error)
+        try:
+            async for line in _lines(reader):
+                reply = OVERSIZED if line is None else session.handle(line)
+                writer.write(_encode(reply))
+                await writer.drain()
+        except (ConnectionError, asyncio.IncompleteReadError):
+            pass  # the client went away: only this connection ends
+        finally:
+            writer.close()
+            with contextlib.suppress(Exception):
+                await writer.wait_closed()
+
+
+def serve(grid, method, host="127.0.0.1", port=7010, settings=None, seed=0, map_error=None):
+    """Run the server until interrupted (``geofix serve``); prints nothing itself."""
+
+    async def main():
+        server = NavigatorServer(grid, method, settings, seed, map_error)
+        await server.start(host, port)
+        await asyncio.Event().wait()
+
+    asyncio.run(main())
+
+
+@contextlib.contextmanager
+def serve_in_thread(grid, method, host="127.0.0.1", settings=None, seed=0, map_error=None):
+    """Run a server on a free port in a background thread; yields ``(host, port)``.
+
+    The server and its thread stop when the ``with`` block ends.
+    """
+    loop = asyncio.new_event_loop()
+    server = NavigatorServer(grid, method, settings, seed, map_error)
+    port = loop.run_until_complete(server.start(host, 0))
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    try:
+        yield host, port
+    finally:
+        asyncio.run_coroutine_threadsafe(server.stop(), loop).result(timeout=10)
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(timeout=10)
+        loop.close()

@@ -1,0 +1,87 @@
+"""``geofix replay``: the EX1811 pings against a map gridded from them, exports, no-truth logs."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import xarray as xr
+from typer.testing import CliRunner
+
+from geofix.cli import app
+from geofix.logs import read_mission, read_tables, write_tables
+from geofix.maps import load_grid
+from geofix.replay import replay
+from geofix.sim.export import export_trials
+
+runner = CliRunner()
+ROW_KEYS = {"end_error_m", "mean_error_m", "max_error_m", "converged_at_s", "reinits"}
+
+
+@pytest.fixture(scope="module")
+def ex1811_map(tmp_path_factory):
+    out = tmp_path_factory.mktemp("map") / "ex1811_50m.nc"
+    result = runner.invoke(app, ["grid", "builtin:ex1811", "--cell-m", "50", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_pmf_replay_of_ex1811_converges_within_two_cells_from_500_m(ex1811_map, tmp_path):
+    args = ["replay", "builtin:ex1811", "--map", str(ex1811_map), "--method", "pmf"]
+    args += ["--ins-initial-error-m", "500", "--seed", "1", "--out", str(tmp_path), "--json"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert set(summary) == {"pings", "methods"} and summary["pings"] == 50
+    row = summary["methods"]["pmf"]
+    assert set(row) == ROW_KEYS
+    assert row["converged_at_s"] is not None
+    # from 500 m of initial INS error: within 2 map cells (100 m) of the GNSS track
+    assert row["max_error_m"] < 100.0 and row["end_error_m"] < 100.0
+    assert row["mean_error_m"] < 50.0
+    ds = xr.open_dataset(tmp_path / "estimates.nc")
+    assert ds["x"].shape == (1, 50) and set(ds["status"].values.ravel()) <= {
+        "initialising",
+        "converging",
+        "converged",
+        "lost",
+    }
+    assert (tmp_path / "estimates.csv").stat().st_size > 0
+    assert (tmp_path / "replay.png").stat().st_size > 0
+
+
+def test_replay_of_an_export_judges_its_ins_against_its_truth(small_mission, tmp_path):
+    sensor = {"type": "multibeam", "beams": 7, "swath_width_m": 3000.0, "noise_std": 2.0}
+    path = export_trials(small_mission("replay-export", sensor=sensor, trials=1), tmp_path / "e.nc")
+    args = ["replay", str(path), "--method", "pmf", "--method", "sitan", "--json"]
+    result = runner.invoke(app, [*args, "--out", str(tmp_path / "o")])
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert list(summary["methods"]) == ["pmf", "sitan"]
+    # the INS starts 1.8 km off on a 1 km map: the pmf fix ends within a tenth of a cell
+    assert summary["methods"]["pmf"]["end_error_m"] < 100.0
+
+
+def test_a_log_without_truth_reports_null_errors(ex1811_map, tmp_path):
+    mission = read_mission("builtin:ex1811").subset(slice(0, 5))
+    write_tables(mission, tmp_path / "log")
+    back = read_tables(tmp_path / "log", nav_source="ins")
+    assert back.reference is None
+    grid = load_grid(ex1811_map)
+    result = replay(replace(back, sigma_position=np.full(5, 50.0)), grid, ["pmf"], seed=0)
+    row = result.summary["methods"]["pmf"]
+    assert row["end_error_m"] is None and row["max_error_m"] is None
+
+
+def test_replay_errors_are_one_line(ex1811_map, tmp_path):
+    result = runner.invoke(app, ["replay", "builtin:ex1811", "--method", "pmf"])
+    assert result.exit_code == 2 and "--map is required" in result.output
+    args = ["replay", "builtin:ex1811", "--map", str(ex1811_map), "--method", "tercom"]
+    result = runner.invoke(app, [*args, "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "batch matcher" in result.output
+
+
+def test_serve_refuses_a_batch_matcher_before_listening():
+    args = ["serve", "--map", "builtin:mb_1km", "--method", "tercom", "--port", "0"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2 and "batch matcher" in result.output

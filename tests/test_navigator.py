@@ -1,0 +1,169 @@
+"""The online navigator: one step shared with campaigns, statuses, gating, re-init, input checks."""
+
+import numpy as np
+import pytest
+
+from geofix import InputError, Navigator
+from geofix.errors import ConfigError
+from geofix.filters.base import observations
+from geofix.filters.online import NavigatorSettings
+from geofix.logs import read_exported
+from geofix.methods import parse_method_spec
+from geofix.problem import footprint_xy
+from geofix.replay import ReplayInput, drive
+from geofix.sim.export import export_trials, load_exported
+
+ACROSS = np.linspace(-150.0, 150.0, 21)
+OFFSETS = np.column_stack([ACROSS, np.zeros_like(ACROSS)])
+
+
+def pings(grid, rng, n=30, noise=0.3, start=(400.0, 300.0), heading=np.pi / 4, speed=8.0):
+    """A straight multibeam run on ``grid``: times, true track, beams (b, 3) per ping."""
+    t = np.arange(n) * 1.0
+    step = speed * np.array([np.sin(heading), np.cos(heading)])
+    truth = np.asarray(start) + t[:, None] * step
+    out = []
+    for k in range(n):
+        x, y = footprint_xy(truth[k], np.asarray(heading), OFFSETS)
+        values = grid.sample(x, y) + noise * rng.standard_normal(ACROSS.size)
+        out.append(np.column_stack([OFFSETS, values]))
+    return t, truth, out
+
+
+def run(nav, t, nav_track, beams, heading=np.pi / 4, sigma=40.0):
+    nav.init(t[0], nav_track[0], sigma, heading)
+    ests = []
+    for k in range(t.size):
+        if k:
+            nav.motion(t[k], nav_track[k], heading)
+        ests.append(nav.measure(t[k], beams[k]))
+    return ests
+
+
+def test_navigator_steps_are_the_campaign_steps_bit_for_bit(small_mission, tmp_path):
+    sensor = {"type": "multibeam", "beams": 7, "swath_width_m": 3000.0, "noise_std": 2.0}
+    path = export_trials(small_mission("nav-same", sensor=sensor, trials=1), tmp_path / "m.nc")
+    mission, grid = read_exported(path)
+    trial = load_exported(path)[1][0]
+    problem = trial.problem(grid)
+    for method in ("pmf", "pf", "sitan"):
+        fix = parse_method_spec(method).match(problem, np.random.default_rng(9))
+        nav = Navigator(grid, method, NavigatorSettings.passive(), seed=9)
+        inputs = ReplayInput(mission.nav, mission.heading, mission.sigma_position, mission.truth)
+        noise_var = observations(problem)[0].noise_var
+        ests = drive(nav, mission, inputs, noise_var)
+        np.testing.assert_array_equal(np.array([e.position for e in ests]), fix.track)
+        np.testing.assert_array_equal(ests[-1].covariance, fix.covariance)
+
+
+def test_status_goes_initialising_converging_converged_and_mle_meets_mmse(synthetic_grid, rng):
+    t, truth, beams = pings(synthetic_grid, rng)
+    nav = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3}, seed=1)
+    offset = np.array([30.0, -25.0])
+    first = nav.init(0.0, truth[0] + offset, 40.0, np.pi / 4)
+    assert first.status == "initialising"
+    ests = run(nav, t, truth + offset, beams)
+    statuses = [e.status for e in ests]
+    assert statuses[-1] == "converged" and "lost" not in statuses
+    assert set(statuses) <= {"converging", "converged"}
+    # the INS offset is removed: the fix is the true track within a map cell
+    assert np.hypot(*(ests[-1].position - (truth[-1]))) < synthetic_grid.cell_size
+    assert np.hypot(*(ests[-1].position - ests[-1].mle)) < synthetic_grid.cell_size
+    assert ests[-1].sigma_m < 2 * synthetic_grid.cell_size
+
+
+def test_an_outlier_ping_is_gated_out_and_leaves_the_estimate(synthetic_grid, rng):
+    t, truth, beams = pings(synthetic_grid, rng, n=20)
+    nav = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3, "gate_nis": 25.0}, seed=1)
+    run(nav, t, truth, beams)
+    before = nav.estimate()
+    nav.motion(20.0, truth[-1], np.pi / 4)
+    bad = beams[-1].copy()
+    bad[:, 2] += 40.0
+    est = nav.measure(20.0, bad)
+    assert not est.accepted and est.rejected == 1 and est.nis > 25.0
+    np.testing.assert_allclose(est.position, before.position, atol=1e-6)
+
+
+def test_a_biased_sensor_is_lost_by_the_nis_window_and_reinitialised(synthetic_grid, rng):
+    t, truth, beams = pings(synthetic_grid, rng, n=40)
+    settings = {"noise_std": 0.3, "gate_nis": None, "nis_window": 5, "nis_limit": 9.0}
+    nav = Navigator(synthetic_grid, "pmf", settings, seed=2)
+    ests = run(nav, t[:20], truth[:20], beams[:20])
+    assert ests[-1].status == "converged"
+    statuses = []
+    for k in range(20, 40):
+        nav.motion(t[k], truth[k], np.pi / 4)
+        biased = beams[k].copy()
+        biased[:, 2] += 15.0  # a 15 m depth bias (50 sigma)
+        statuses.append(nav.measure(t[k], biased).status)
+    assert "lost" in statuses
+    assert nav.estimate().reinits >= 1
+
+
+def test_an_outage_reinitialises_around_the_last_good_offset(synthetic_grid, rng):
+    t, truth, beams = pings(synthetic_grid, rng, n=20)
+    offset = np.array([25.0, 10.0])
+    nav = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3, "outage_s": 30.0}, seed=3)
+    ests = run(nav, t, truth + offset, beams)
+    assert ests[-1].status == "converged"
+    est = nav.motion(60.0, truth[-1] + offset, np.pi / 4)  # 41 s without a ping
+    assert est.status == "lost" and est.reinits == 1
+    # the restarted prior is centred on the navigation corrected by the last good offset
+    mean, _ = nav.filter.estimate(nav.state)
+    assert np.hypot(*(mean - truth[-1])) < synthetic_grid.cell_size
+
+
+def test_inputs_are_validated_with_clear_errors(synthetic_grid):
+    nav = Navigator(synthetic_grid, "pmf", seed=0)
+    with pytest.raises(InputError, match="no init yet"):
+        nav.measure(0.0, [[0.0, 0.0, -100.0]])
+    with pytest.raises(InputError, match="start box"):
+        nav.init(0.0, (-5000.0, -5000.0), 10.0)
+    with pytest.raises(InputError, match="sigma_m must be positive"):
+        nav.init(0.0, (600.0, 600.0), 0.0)
+    nav.init(10.0, (600.0, 600.0), 30.0)
+    with pytest.raises(InputError, match="before the previous input"):
+        nav.motion(5.0, (600.0, 600.0), 0.0)
+    with pytest.raises(InputError, match="limit 30 m/s"):
+        nav.motion(11.0, (700.0, 600.0), 0.0)
+    with pytest.raises(InputError, match="from the last nav"):
+        nav.measure(20.0, [[0.0, 0.0, -100.0]])
+    with pytest.raises(InputError, match=r"shape \(b, 3\)"):
+        nav.measure(10.0, [[0.0, -100.0]])
+    with pytest.raises(InputError, match="finite"):
+        nav.measure(10.0, [[np.nan, 0.0, -100.0]])
+    with pytest.raises(InputError, match="more than max_beams"):
+        nav.measure(10.0, np.zeros((5000, 3)))
+    with pytest.raises(InputError, match="t must be finite"):
+        nav.motion(float("nan"), (600.0, 600.0), 0.0)
+    # the refused inputs left the navigator usable
+    three = [[a, 0.0, float(synthetic_grid.sample(600.0 + a, 600.0))] for a in (-20, 0, 20)]
+    assert nav.measure(10.5, three).accepted
+    assert not nav.measure(10.6, three[:2]).accepted  # fewer than min_beams
+
+
+def test_bad_method_or_setting_is_a_config_error(synthetic_grid):
+    with pytest.raises(ConfigError, match="batch matcher"):
+        Navigator(synthetic_grid, "tercom")
+    with pytest.raises(ConfigError, match="unknown setting"):
+        Navigator(synthetic_grid, "pmf", {"gate": 3})
+    with pytest.raises(ConfigError, match="unknown method"):
+        Navigator(synthetic_grid, "nope")
+
+
+def test_a_mounting_offset_moves_every_beam_by_it(synthetic_grid, rng):
+    t, truth, beams = pings(synthetic_grid, rng, n=25, noise=0.1)
+    mount = np.array([12.0, -8.0])  # sonar 12 m to starboard, 8 m aft of the nav point
+    # the beams were measured from the sonar: give them relative to it, and the nav point
+    shifted = []
+    for b in beams:
+        rel = b.copy()
+        rel[:, :2] -= mount
+        shifted.append(rel)
+    settings = {"noise_std": 0.1, "mount_offset_m": tuple(mount)}
+    right = run(Navigator(synthetic_grid, "pmf", settings, seed=1), t, truth, shifted)
+    wrong = run(Navigator(synthetic_grid, "pmf", {"noise_std": 0.1}, seed=1), t, truth, shifted)
+    assert np.hypot(*(right[-1].position - truth[-1])) < 2.0
+    # without it the fix absorbs the 14 m lever arm
+    assert np.hypot(*(wrong[-1].position - truth[-1])) > 8.0
