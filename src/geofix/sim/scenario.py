@@ -22,7 +22,14 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from geofix.errors import ConfigError
 
@@ -91,6 +98,13 @@ class InsSpec(_Strict):
     ``initial_error_m`` is a fixed ``[east, north]`` offset of the indicated start;
     ``initial_error_std_m`` adds a random per-axis Gaussian offset per trial.
     ``prior_sigma_m`` overrides the prior 1-sigma handed to the matchers.
+    ``mode`` is ``free`` (a free inertial navigator, the default: every other key as
+    above) or ``dvl`` (DVL-aided dead reckoning: the position integrates the ``dvl``
+    block's velocity, with its bias, noise and ``scale_error``, rotated by a heading of
+    error ``heading_error_deg`` drifting at ``gyro_bias_deg_h`` with noise
+    ``gyro_noise_deg_rt_h``; the accelerometer, velocity-error and Schuler keys are then
+    unused). ``latitude_deg`` (degrees, optional) switches on the Earth-rate coupling of
+    the heading error of a free INS (see :mod:`geofix.nav.errstate`).
     """
 
     initial_error_m: tuple[float, float] = (0.0, 0.0)
@@ -103,13 +117,20 @@ class InsSpec(_Strict):
     accel_noise_ug_rt_hz: float = Field(default=0.0, ge=0)
     schuler: bool = True
     prior_sigma_m: float | None = Field(default=None, gt=0)
+    mode: Literal["free", "dvl"] = "free"
+    latitude_deg: float | None = Field(default=None, ge=-90, le=90)
 
 
 class DvlSpec(_Strict):
-    """Doppler velocity log: per-axis white noise and a constant bias, m/s."""
+    """Doppler velocity log: per-axis white noise and a constant bias, m/s.
+
+    ``scale_error`` (dimensionless, e.g. 0.002 for 0.2 %) is the magnitude of a scale-factor
+    error of random sign; it is used by ``ins.mode: dvl`` (dead reckoning on the DVL).
+    """
 
     noise_std_m_s: float = Field(default=0.01, ge=0)
     bias_m_s: float = Field(default=0.0, ge=0)
+    scale_error: float = Field(default=0.0, ge=0)
 
 
 class Scenario(_Strict):
@@ -131,6 +152,12 @@ class Scenario(_Strict):
         if not v.strip():
             raise ValueError("must not be empty")
         return v
+
+    @model_validator(mode="after")
+    def _dvl_mode_needs_dvl(self) -> Scenario:
+        if self.ins.mode == "dvl" and self.dvl is None:
+            raise ValueError("ins.mode: dvl needs a dvl block (noise_std_m_s, bias_m_s, ...)")
+        return self
 
     def map_path(self) -> str:
         """The map path as given, resolved against the scenario's folder."""
