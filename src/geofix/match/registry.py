@@ -26,6 +26,7 @@ _METHOD_MODULES = (
     "geofix.filters.sitan",
     "geofix.filters.pmf",
     "geofix.filters.pf",
+    "geofix.filters.mpf",
 )
 
 
