@@ -181,6 +181,7 @@ def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path,
     assert stats["rms_error_m"] == pytest.approx(np.sqrt(np.mean(end**2)))
     maha = result.frame["end_mahalanobis"].to_numpy()
     assert stats["nees"] == pytest.approx(np.mean(maha**2))
+    assert stats["track_rms_error_m"] >= stats["mean_track_error_m"] > 0
     assert result.frame["end_mahalanobis"].notna().all()  # tercom gives a covariance
     with sqlite3.connect(tmp_path / "results.sqlite") as db:
         db.execute("DROP TABLE trial_bounds")

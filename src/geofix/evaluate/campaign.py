@@ -391,7 +391,8 @@ def _real(value) -> float:
 
 
 def _with_integrity(frame: pd.DataFrame, infos: dict) -> pd.DataFrame:
-    """Add ``end_mahalanobis`` and ``crlb_m``; drop the per-sample array columns."""
+    """Add ``end_mahalanobis``, ``crlb_m`` and ``track_ms_m2`` (mean squared error along the
+    track, m^2); drop the per-sample array columns."""
     frame = frame.copy()
     ends = [np.asarray(infos[int(t)].truth_end) for t in frame["trial"]]
     frame["end_mahalanobis"] = [
@@ -399,6 +400,7 @@ def _with_integrity(frame: pd.DataFrame, infos: dict) -> pd.DataFrame:
         for est, end, cov in zip(frame["estimate"], ends, frame["covariance"], strict=True)
     ]
     frame["crlb_m"] = [float(np.sqrt(infos[int(t)].crlb_var_m2)) for t in frame["trial"]]
+    frame["track_ms_m2"] = [float(np.mean(np.asarray(e, float) ** 2)) for e in frame["error"]]
     return frame.drop(columns=["estimate", "error", "covariance"])
 
 

@@ -57,7 +57,9 @@ def summarize(results_df: pd.DataFrame, cell_m: float) -> dict:
         (end-point RMS error ``sqrt(mean(e^2))`` over the trials that did not fail,
         metres) and ``nees`` (mean normalised estimation error squared of the end point,
         ``e^T C^-1 e`` with the method's own last covariance ``C``, over the trials that
-        give one: about 2 for a consistent 2-D estimate; None without covariances).
+        give one: about 2 for a consistent 2-D estimate; None without covariances) and
+        ``track_rms_error_m`` (RMS of the error over every sample of every trial that did
+        not fail, metres, from the column ``track_ms_m2``; None without it).
     """
     methods = list(dict.fromkeys(results_df["method"]))
     return {m: method_stats(results_df[results_df["method"] == m], cell_m) for m in methods}
@@ -86,6 +88,9 @@ def method_stats(rows: pd.DataFrame, cell_m: float) -> dict:
         "leg_mean_errors_m": leg_mean_errors(ok["leg_errors_m"]),
         "rms_error_m": _num(np.sqrt(np.mean(end**2)) if end.size else math.nan),
         "nees": _num(mean_nees(ok)),
+        "track_rms_error_m": _num(
+            np.sqrt(ok["track_ms_m2"].mean()) if "track_ms_m2" in ok and len(ok) else math.nan
+        ),
     }
 
 
