@@ -272,7 +272,7 @@ def _verdict(label, stats, crlb, peers, batch, trials) -> str:
         r = b["track"] / crlb["track"]
         met = "met" if r <= TRACK_FACTOR else "NOT met"
         checks.append(
-            f"its mean track error {fmt(r, 2)}× `crlb_track_m` ({met}: ≤ {TRACK_FACTOR}×)"
+            f"its track RMS {fmt(r, 2)}× `crlb_track_m` ({met}: ≤ {TRACK_FACTOR}×)"
         )
     if "mpf" in stats:
         nees = stats["mpf"]["nees"]
