@@ -418,10 +418,14 @@ def propagate(es: ErrorState, x0: np.ndarray, white=None) -> np.ndarray:
     n = es.transitions.shape[0] + 1
     out = np.empty((n, es.dim))
     out[0] = x = np.asarray(x0, dtype=float)
+    q_last, factor = None, None
     for k in range(n - 1):
         x = es.transitions[k] @ x
-        if white is not None and np.any(es.process_cov[k]):
-            x = x + noise_factor(es.process_cov[k]) @ white[k]
+        q = es.process_cov[k]
+        if white is not None and np.any(q):
+            if q_last is None or not np.array_equal(q, q_last):  # steps of equal dt share Q
+                q_last, factor = q, noise_factor(q)
+            x = x + factor @ white[k]
         out[k + 1] = x
     return out
 
