@@ -61,6 +61,7 @@ _PUBLIC = {
     "SitanBank": "geofix.filters.sitan",
     "Pmf": "geofix.filters.pmf",
     "Pf": "geofix.filters.pf",
+    "Mpf": "geofix.filters.mpf",
     "FreeIns": "geofix.match.free_ins",
     "available_methods": "geofix.methods",
     "parse_method_spec": "geofix.methods",

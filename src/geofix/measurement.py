@@ -206,7 +206,10 @@ def linearise(grid: Grid, position, heading: float, offsets, half_width_m: float
 # --------------------------------------------------------------------------- information
 @functools.lru_cache(maxsize=4)
 def gradient_grids(grid: Grid) -> tuple[Grid, Grid]:
-    """The map's gradient along x and y as two grids (NaN where it cannot be formed).
+    """The map's central-difference gradient along x and y as two grids (NaN where none).
+
+    Used by the suitability maps; the bounds use the exact interpolant gradient
+    (:func:`beam_gradients`).
 
     Parameters
     ----------
@@ -224,7 +227,7 @@ def gradient_grids(grid: Grid) -> tuple[Grid, Grid]:
 
 
 def beam_gradients(grid: Grid, track, heading, offsets) -> tuple[np.ndarray, np.ndarray]:
-    """Map gradient at every beam footprint of a track.
+    """Exact gradient of the bilinear map read at every beam footprint of a track.
 
     Parameters
     ----------
@@ -242,10 +245,11 @@ def beam_gradients(grid: Grid, track, heading, offsets) -> tuple[np.ndarray, np.
     tuple of numpy.ndarray
         ``(gx, gy)`` each ``(n, b)``, field units per metre; 0 where no gradient exists.
     """
-    gxg, gyg = gradient_grids(grid)
-    gx = np.nan_to_num(predict_track(gxg, track, heading, offsets), nan=0.0)
-    gy = np.nan_to_num(predict_track(gyg, track, heading, offsets), nan=0.0)
-    return gx, gy
+    x, y = footprint_xy(
+        np.asarray(track, float), np.asarray(heading, float), np.asarray(offsets, float)
+    )
+    _, gx, gy = grid.sample_gradient(x, y)
+    return np.nan_to_num(gx, nan=0.0), np.nan_to_num(gy, nan=0.0)
 
 
 def sample_information(gx, gy, beam_var, valid=None) -> np.ndarray:

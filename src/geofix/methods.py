@@ -16,6 +16,7 @@ import re
 import typing
 
 from geofix.errors import ConfigError
+from geofix.filters.mpf import Mpf
 from geofix.filters.pf import Pf
 from geofix.filters.pmf import Pmf
 from geofix.filters.sitan import Sitan, SitanBank
@@ -45,6 +46,7 @@ BUILTIN_METHODS: tuple[type[Matcher], ...] = (
     SitanBank,
     Pmf,
     Pf,
+    Mpf,
     FreeIns,
 )
 

@@ -308,3 +308,32 @@ def test_errors_before_any_trial_create_no_store(tmp_path, scenario, methods, er
     with pytest.raises(error):
         run_campaign(scenario, methods, jobs=1, out_dir=tmp_path / "out", progress=None)
     assert not (tmp_path / "out").exists()
+
+
+@dataclass
+class _ConfidentShift(_TruthShift):
+    """As :class:`_TruthShift`, with a fix covariance."""
+
+    covariance: tuple = ((900.0, 300.0), (300.0, 400.0))
+
+    def match(self, problem, rng):
+        fix = super().match(problem, rng)
+        return Fix(track=fix.track, covariance=np.array(self.covariance), ambiguous=False)
+
+
+def test_each_leg_starts_from_the_previous_fix_covariance_grown_by_the_ins():
+    from geofix.evaluate.runner import fix_variance
+
+    trial = _trial()
+    sigma = trial.sigma_position
+    method = _ConfidentShift(trial)
+    fine = Grid(np.zeros((4, 4)), x0=0.0, y0=0.0, dx=10.0, dy=10.0)
+    run_trial(method, trial, fine, np.random.default_rng(0))
+    largest = np.linalg.eigvalsh(np.array(method.covariance))[-1]
+    assert 25.0 < largest < sigma[4] ** 2  # inside the cell floor and the free-INS cap
+    expected = np.sqrt(largest + sigma[5:10] ** 2 - sigma[4] ** 2)
+    np.testing.assert_allclose(method.seen[1].sigma_position, expected)
+    # a tiny covariance is floored at a quarter cell squared, a huge one capped by the INS
+    assert fix_variance(np.eye(2), 100.0, 300.0, 80.0) == pytest.approx(2500.0)
+    assert fix_variance(1e9 * np.eye(2), 100.0, 300.0, 80.0) == pytest.approx(9e4)
+    assert fix_variance(None, 100.0, 300.0, 80.0) == pytest.approx(6400.0)

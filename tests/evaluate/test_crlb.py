@@ -9,6 +9,7 @@ import pytest
 from geofix.evaluate import run_campaign
 from geofix.evaluate.crlb import (
     batch_bound,
+    error_state_bound,
     process_variances,
     recursive_bound,
     rms_bound,
@@ -23,7 +24,8 @@ from geofix.sim.trial import Trial
 
 
 def _bowl(a=0.02, cell=10.0, n=101):
-    """``z = a (x^2 + y^2) / 2`` centred on the grid: gradient ``(a x, a y)`` exactly."""
+    """``z = a (x^2 + y^2) / 2`` centred on the grid: the bilinear read's gradient is
+    ``(a x, a y)`` exactly at cell centres (a secant of a parabola)."""
     c = cell * (np.arange(n) - n // 2)
     values = 0.5 * a * (c[None, :] ** 2 + c[:, None] ** 2)
     return Grid(values, x0=c[0], y0=c[0], dx=cell, dy=cell, name="bowl")
@@ -48,7 +50,8 @@ def test_plane_information_is_beams_times_outer_product_of_slope():
 def test_batch_bound_on_a_bowl_matches_the_hand_computed_inverse():
     a, var = 0.02, 0.25
     grid = _bowl(a)
-    track = np.array([[100.0, 0.0], [0.0, 150.0], [-120.0, -60.0], [55.0, 75.0]])
+    # mid-cell points: there the bilinear interpolant's slope equals the bowl's
+    track = np.array([[105.0, 5.0], [5.0, 155.0], [-125.0, -65.0], [55.0, 75.0]])
     gx, gy = beam_gradients(grid, track, np.zeros(4), np.zeros((1, 2)))
     info = sample_information(gx, gy, var)
     x, y = track.T
@@ -93,7 +96,7 @@ def test_recursive_bound_without_information_is_the_prior_grown_by_the_ins():
 
 def _trial_on(grid, n=30, beams=1):
     t = np.arange(n) * 10.0
-    truth = np.column_stack([-150.0 + 10.0 * t / 10, 40.0 + 0 * t])
+    truth = np.column_stack([-145.0 + 10.0 * t / 10, 45.0 + 0 * t])  # mid-cells
     offsets = np.column_stack([np.linspace(-30, 30, beams), np.zeros(beams)])
     return Trial(
         truth=truth,
@@ -171,9 +174,93 @@ def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path,
     per_trial = result.frame["crlb_m"].to_numpy()
     assert summary.crlb_m == pytest.approx(np.sqrt(np.mean(per_trial**2)))
     assert "false_fix_rate" in summary.methods["tercom"].to_json()
+    assert summary.crlb_track_m > 0 and summary.crlb_rw_m > 0
+    stats = summary.methods["tercom"]
+    end = result.frame["end_error_m"].to_numpy()
+    assert stats.rms_error_m == pytest.approx(np.sqrt(np.mean(end**2)))
+    maha = result.frame["end_mahalanobis"].to_numpy()
+    assert stats.nees == pytest.approx(np.mean(maha**2))
+    assert stats.track_rms_error_m >= stats.mean_track_error_m > 0
     assert result.frame["end_mahalanobis"].notna().all()  # tercom gives a covariance
     with sqlite3.connect(tmp_path / "results.sqlite") as db:
         db.execute("DROP TABLE trial_bounds")
     again = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=None)
     assert again.computed == 0
     assert again.summary.crlb_m == pytest.approx(result.summary.crlb_m)
+    # a store of the earlier schema (no track / random-walk columns) is refilled
+    with sqlite3.connect(tmp_path / "results.sqlite") as db:
+        db.execute("DROP TABLE trial_bounds")
+        db.execute(
+            "CREATE TABLE trial_bounds (scenario_hash TEXT NOT NULL, trial INTEGER NOT NULL, "
+            "crlb_var_m2 REAL, crlb_batch_var_m2 REAL, truth_end_x REAL NOT NULL, "
+            "truth_end_y REAL NOT NULL, PRIMARY KEY (scenario_hash, trial))"
+        )
+    old = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=None)
+    assert old.summary.crlb_rw_m == pytest.approx(result.summary.crlb_rw_m)
+    assert old.summary.crlb_m == pytest.approx(result.summary.crlb_m)
+
+
+def test_exact_gradient_matches_finite_differences_of_the_bilinear_read():
+    rng = np.random.default_rng(3)
+    cell = 25.0
+    c = cell * np.arange(80)
+    values = (
+        np.sin(c[None, :] / 173.0) * np.cos(c[:, None] / 97.0) * 40.0
+        + np.exp(-((c[None, :] - 900) ** 2 + (c[:, None] - 1100) ** 2) / 2e5) * 30.0
+    )
+    grid = Grid(values, x0=0.0, y0=0.0, dx=cell, dy=cell, name="wavy")
+    # points away from cell edges (the interpolant's slope jumps across them)
+    cells = rng.integers(1, 77, (200, 2)) + rng.uniform(0.1, 0.9, (200, 2))
+    x, y = cells[:, 0] * cell, cells[:, 1] * cell
+    _, gx, gy = grid.sample_gradient(x, y)
+    h = 1e-3
+    fx = (grid.sample(x + h, y) - grid.sample(x - h, y)) / (2 * h)
+    fy = (grid.sample(x, y + h) - grid.sample(x, y - h)) / (2 * h)
+    np.testing.assert_allclose(gx, fx, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(gy, fy, rtol=1e-6, atol=1e-9)
+    # the old central difference over two cells is not the interpolant's slope
+    assert (
+        np.abs(
+            gx - np.gradient(values, cell, axis=1)[cells[:, 1].astype(int), cells[:, 0].astype(int)]
+        ).max()
+        > 1e-3
+    )
+    assert np.isnan(grid.sample_gradient(np.array([-5.0]), np.array([10.0]))[1]).all()
+
+
+def test_error_state_bound_on_a_plane_is_a_kalman_filter_covariance():
+    from geofix.nav.errstate import InsErrorModel, error_state
+    from geofix.nav.spec import DvlSpec, InsSpec
+    from geofix.nav.trajectory import true_trajectory
+
+    slope = np.array([0.05, -0.02])
+    true = true_trajectory((0.0, 0.0), 60.0, 5.0, 10.0, 30, 2, 40.0, np.random.default_rng(0))
+    spec = InsSpec(
+        initial_error_std_m=50.0,
+        velocity_error_m_s=0.1,
+        accel_bias_ug=30.0,
+        gyro_bias_deg_h=0.01,
+        heading_error_deg=0.2,
+        accel_noise_ug_rt_hz=10.0,
+        latitude_deg=30.0,
+    )
+    es = error_state(
+        InsErrorModel.from_specs(spec, DvlSpec(noise_std_m_s=0.05)), true.times, true.positions
+    )
+    beam_var = np.array([0.5, 2.0, 0.5])
+    info = np.broadcast_to(np.outer(slope, slope) * np.sum(1 / beam_var), (true.n, 2, 2))
+    bound = error_state_bound(es, info)
+    # a textbook Kalman filter: three beams on the plane, h = -slope . (H x), plus the DVL
+    c = np.vstack([np.tile(-slope @ es.position_map, (3, 1)), es.velocity_map])
+    r = np.diag([*beam_var, 0.05**2, 0.05**2])
+    p = es.prior_cov
+    for k in range(true.n):
+        if k:
+            p = es.transitions[k - 1] @ p @ es.transitions[k - 1].T + es.process_cov[k - 1]
+        gain = p @ c.T @ np.linalg.inv(c @ p @ c.T + r)
+        p = (np.eye(es.dim) - gain @ c) @ p
+        np.testing.assert_allclose(bound[k], p, rtol=1e-6, atol=1e-9 * np.abs(p).max())
+    # along the contour the plane says nothing: that axis is bounded by the INS alone
+    pos = es.position_cov(bound[-1])
+    along = np.array([slope[1], -slope[0]]) / np.hypot(*slope)
+    assert along @ pos @ along > 10 * (slope @ pos @ slope) / (slope @ slope)

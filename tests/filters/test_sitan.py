@@ -272,7 +272,8 @@ def test_missing_samples_are_skipped(rough, method):
     measured[10:20] = np.nan
     measured[25:, 0] = np.nan
     gappy = MatchProblem(**{**problem.__dict__, "measured": measured})
-    fix = parse_method_spec(method).match(gappy, None)
+    # the INS error here is a pure position random walk: the prior's growth is not drift
+    fix = parse_method_spec(f"{method}:drift_in_velocity=false").match(gappy, None)
     assert np.isfinite(fix.track).all()
     assert np.hypot(*(fix.track[-1] - truth[-1])) < 10.0
 
@@ -293,3 +294,14 @@ def test_registry_settings_and_validation():
         parse_method_spec("sitan:beta=1.5")
     with pytest.raises(ConfigError, match="odd"):
         parse_method_spec("sitan-bank:side=6")
+
+
+def test_position_noise_is_the_prior_growth_not_explained_by_the_velocity_states():
+    from geofix.filters.sitan import MIN_POSITION_VAR, position_process_var
+
+    # no velocity states: the whole growth is position noise
+    assert position_process_var(9.0, 100.0, 10.0, 0.0, 0.0) == pytest.approx(9.0)
+    # a 0.05 m/s velocity prior explains 0.05^2 ((110)^2 - 100^2) = 5.25 m^2 of it
+    assert position_process_var(9.0, 100.0, 10.0, 0.05, 0.0) == pytest.approx(3.75)
+    # a growth that is all drift leaves only the floor
+    assert position_process_var(5.0, 100.0, 10.0, 0.05, 0.0) == MIN_POSITION_VAR

@@ -91,23 +91,80 @@ def test_fixed_initial_error_is_a_constant_offset():
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
-def test_constant_heading_error_rotates_track_about_its_start(seed):
+def test_without_schuler_a_heading_error_rotates_the_track_about_its_start(seed):
+    # the velocity gained since alignment is rotated; without the Schuler loop it
+    # integrates to the travelled displacement rotated (to first order in the angle)
     true = mission(samples=25, legs=3, turn_std=20.0, seed=seed)
-    spec = InsSpec(heading_error_deg=2.0, initial_error_m=(50.0, 0.0))
+    spec = InsSpec(heading_error_deg=2.0, initial_error_m=(50.0, 0.0), schuler=False)
     ins = simulate_ins(true, spec, np.random.default_rng(seed))
     angle = ins.heading_error[0]
     assert abs(angle) == pytest.approx(np.radians(2.0))
     np.testing.assert_allclose(ins.heading_error, angle)
-    c, s = np.cos(angle), np.sin(angle)
-    clockwise = np.array([[c, s], [-s, c]])
     rel_true = true.positions - true.positions[0]
     rel_ind = ins.indicated - ins.indicated[0]
-    np.testing.assert_allclose(rel_ind, rel_true @ clockwise.T, atol=1e-8)
-    # measured as bearings: indicated bearing = true bearing + heading error
-    bearing_true = np.arctan2(rel_true[1:, 0], rel_true[1:, 1])
-    bearing_ind = np.arctan2(rel_ind[1:, 0], rel_ind[1:, 1])
-    np.testing.assert_allclose(np.angle(np.exp(1j * (bearing_ind - bearing_true))), angle)
+    rotated = rel_true + angle * np.column_stack([rel_true[:, 1], -rel_true[:, 0]])
+    np.testing.assert_allclose(rel_ind, rotated, atol=1e-8)
     np.testing.assert_allclose(ins.heading - true.heading, angle)
+    np.testing.assert_allclose(ins.rotation_error, ins.position_error - [50.0, 0.0], atol=1e-9)
+
+
+def test_free_ins_heading_error_runs_through_the_schuler_loop():
+    # straight track at velocity v: dv0 = psi J v, so dp = psi J v sin(w t) / w
+    true = mission()
+    ins = simulate_ins(true, InsSpec(heading_error_deg=0.5), np.random.default_rng(3))
+    psi = ins.heading_error[0]
+    v = true.velocity[0]
+    t = true.times[:, None]
+    expected = psi * np.array([v[1], -v[0]]) * np.sin(SCHULER_OMEGA * t) / SCHULER_OMEGA
+    np.testing.assert_allclose(ins.position_error, expected, rtol=1e-7, atol=1e-8)
+
+
+def test_free_ins_heading_error_through_the_earth_rate():
+    # at rest the only effect is a north-channel level drift Omega cos L psi
+    true = true_trajectory((0.0, 0.0), 0.0, 0.0, 20.0, 111)
+    spec = InsSpec(heading_error_deg=0.05, latitude_deg=54.0)
+    ins = simulate_ins(true, spec, np.random.default_rng(0))
+    psi = ins.heading_error[0]
+    drift = 7.292115e-5 * np.cos(np.radians(54.0)) * psi
+    np.testing.assert_allclose(ins.position_error[:, 0], 0.0, atol=1e-9)
+    expected = schuler_gyro_error(drift, true.times)
+    np.testing.assert_allclose(ins.position_error[:, 1], expected, rtol=1e-7, atol=1e-9)
+    # R * 3.74e-8 rad/s * (2200 s - sin(2.73) / omega_s): about 447 m after 2200 s
+    assert abs(expected[-1]) == pytest.approx(447.0, rel=0.01)
+
+
+@pytest.mark.parametrize(("bias", "scale"), [(0.0, 0.004), (0.03, 0.0)])
+def test_dvl_dead_reckoning_closed_form(bias, scale):
+    # straight track: dp = p0 + (psi0 J v + s v + b) t + eps_z J v t^2 / 2
+    true = mission(samples=60, heading=30.0)
+    dvl = DvlSpec(noise_std_m_s=0.0, bias_m_s=bias, scale_error=scale)
+    spec = InsSpec(
+        mode="dvl", initial_error_m=(10.0, -5.0), heading_error_deg=0.3, gyro_bias_deg_h=0.5
+    )
+    ins = simulate_ins(true, spec, np.random.default_rng(9), dvl)
+    psi0, eps_z = ins.heading_error[0], ins.gyro_bias[2]
+    assert abs(psi0) == pytest.approx(np.radians(0.3))
+    assert abs(eps_z) == pytest.approx(0.5 * np.pi / 180 / 3600)
+    np.testing.assert_allclose(ins.heading_error, psi0 + eps_z * true.times, atol=1e-12)
+    t = true.times[:, None]
+    v = true.velocity[0]
+    jv = np.array([v[1], -v[0]])
+    err = ins.position_error - np.array([10.0, -5.0]) - (psi0 * t + eps_z * t**2 / 2) * jv
+    rate = err[-1] / true.times[-1]  # s v + b, constant
+    np.testing.assert_allclose(err, rate * t, atol=1e-9)
+    if scale:
+        assert abs(rate @ v / (v @ v)) == pytest.approx(scale, rel=1e-9)
+        assert abs(rate @ jv) < 1e-12
+    else:
+        assert np.hypot(*rate) == pytest.approx(bias, rel=1e-9)
+
+
+def test_dvl_mode_needs_a_dvl():
+    from geofix.errors import ConfigError
+
+    true = mission(samples=5)
+    with pytest.raises(ConfigError, match="dvl"):
+        simulate_ins(true, InsSpec(mode="dvl"), np.random.default_rng(0))
 
 
 def test_heading_error_sign_is_random_per_trial():
@@ -180,7 +237,7 @@ def test_position_sigma_matches_empirical_spread(schuler):
 
 def test_position_sigma_heading_term_matches_cross_track_spread():
     true = mission(heading=0.0)  # northward: the heading error shows on the east axis
-    spec = InsSpec(heading_error_deg=0.1, initial_error_std_m=5.0)
+    spec = InsSpec(heading_error_deg=0.1, initial_error_std_m=5.0, schuler=False)
     rms = _rms([ins.position_error for ins in _draws(spec, true)])
     sigma = position_sigma(spec, true.times, distance_m=10.0 * true.times)
     for k in (10, 50, 110):
@@ -190,14 +247,15 @@ def test_position_sigma_heading_term_matches_cross_track_spread():
 
 def test_position_sigma_heading_random_walk_term():
     # gyro noise also drives the level channels, so compare the rotation part alone
+    # (without the Schuler loop the heading walk rotates the travelled distance)
     true = mission(heading=0.0)
-    spec = InsSpec(gyro_noise_deg_rt_h=0.05)
-    rms = _rms([ins.rotation_error for ins in _draws(spec, true)])
+    spec = InsSpec(gyro_noise_deg_rt_h=0.05, schuler=False)
+    rms = _rms([ins.position_error for ins in _draws(spec, true)])
     total = position_sigma(spec, true.times, distance_m=10.0 * true.times)
     level = position_sigma(spec, true.times)
-    heading_part = np.sqrt(total**2 - level**2)
     for k in (10, 50, 110):
-        assert rms[k, 0] == pytest.approx(heading_part[k], rel=0.2)
+        assert rms[k, 0] == pytest.approx(total[k], rel=0.2)
+        assert rms[k, 1] == pytest.approx(level[k], rel=0.2)
 
 
 def test_dvl_is_truth_plus_constant_bias_plus_noise():

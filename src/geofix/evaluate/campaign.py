@@ -14,10 +14,11 @@ number of jobs or the scheduler (wall times aside).
 
 Beside each trial's results the worker computes the trial's Cramér–Rao bounds
 (:func:`geofix.evaluate.crlb.trial_crlb`) and keeps its true end point; both go to a side
-table ``trial_bounds`` of the same SQLite file (older stores gain it on first use, and
-trials resumed without it are filled in by the calling process). They give the summary's
-``crlb_m`` / ``crlb_batch_m`` and the Mahalanobis distance of each end error used by the
-false-fix rule.
+table ``trial_bounds`` of the same SQLite file (older stores gain it, and its newer
+columns, on first use, and trials resumed without them are filled in by the calling
+process). They give the summary's ``crlb_m`` (error-state bound), ``crlb_track_m``,
+``crlb_rw_m`` (random-walk bound) and ``crlb_batch_m``, and the Mahalanobis distance of
+each end error used by the false-fix rule.
 """
 
 from __future__ import annotations
@@ -70,17 +71,23 @@ class TrialInfo:
     index : int
         Trial number.
     crlb_var_m2 : float
-        ``trace(J_n^-1)`` of the recursive CRLB at the last sample, m^2.
+        Trace of the error-state CRLB at the last sample, m^2.
     crlb_batch_var_m2 : float
         ``trace(J^-1)`` of the batch CRLB of the last leg, m^2 (``inf`` if singular).
     truth_end : tuple of float
         True position at the last sample, metres.
+    crlb_track_var_m2 : float
+        Trace of the error-state CRLB averaged along the track, m^2.
+    crlb_rw_var_m2 : float
+        Trace of the random-walk CRLB at the last sample, m^2.
     """
 
     index: int
     crlb_var_m2: float
     crlb_batch_var_m2: float
     truth_end: tuple[float, float]
+    crlb_track_var_m2: float = float("nan")
+    crlb_rw_var_m2: float = float("nan")
 
 
 _Done = tuple[list[tuple[str, int, TrialResult]], TrialInfo]
@@ -103,11 +110,13 @@ class CampaignResult:
         without one) and ``crlb_m`` (the trial's recursive bound, metres).
     summary : CampaignSummary
         The bounds and every method's :class:`~geofix.evaluate.summary.MethodStats`;
-        ``summary.to_json()`` is what ``summary.json`` holds.
-        ``crlb_m`` is the recursive CRLB on the end-point RMS error over the trials,
-        ``sqrt(mean_i trace(J_n^-1))`` metres (variances averaged, then the root);
+        ``summary.to_json()`` is what ``summary.json`` holds. ``crlb_m`` is the
+        error-state CRLB on the end-point RMS error over the trials,
+        ``sqrt(mean_i trace(P_n))`` metres (variances averaged, then the root);
+        ``crlb_track_m`` the same averaged over the samples as well (the bound on the
+        track RMS); ``crlb_rw_m`` the random-walk bound on the end-point RMS;
         ``crlb_batch_m`` the same for a rigid batch fix of the last leg (None if singular
-        on some trial).
+        on some trial). See :mod:`geofix.evaluate.crlb`.
     paths : dict
         ``{"store": results.sqlite, "summary": summary.json}``.
     computed : int
@@ -306,6 +315,8 @@ def _finish(scenario, grid, frame, out: Path, store_path: Path, computed: int, i
         trials=scenario.trials,
         crlb_m=rms_bound([i.crlb_var_m2 for i in chosen]),
         crlb_batch_m=rms_bound([i.crlb_batch_var_m2 for i in chosen]),
+        crlb_track_m=rms_bound([i.crlb_track_var_m2 for i in chosen]),
+        crlb_rw_m=rms_bound([i.crlb_rw_var_m2 for i in chosen]),
         methods=summarize(frame, grid.cell_size),
     )
     summary_path = out / SUMMARY_NAME
@@ -372,7 +383,12 @@ def trial_info(scenario: Scenario, grid: Grid, trial) -> TrialInfo:
     bound = trial_crlb(trial, grid, scenario_beam_variance(scenario, trial.offsets))
     end = np.asarray(trial.truth[-1], dtype=float)
     return TrialInfo(
-        trial.index, bound.recursive_var_m2, bound.batch_var_m2, (float(end[0]), float(end[1]))
+        trial.index,
+        bound.recursive_var_m2,
+        bound.batch_var_m2,
+        (float(end[0]), float(end[1])),
+        bound.track_var_m2,
+        bound.rw_var_m2,
     )
 
 
@@ -385,9 +401,12 @@ CREATE TABLE IF NOT EXISTS trial_bounds (
     crlb_batch_var_m2 REAL,
     truth_end_x REAL NOT NULL,
     truth_end_y REAL NOT NULL,
+    crlb_track_var_m2 REAL,
+    crlb_rw_var_m2 REAL,
     PRIMARY KEY (scenario_hash, trial)
 )
 """
+_BOUNDS_COLUMNS = ("crlb_track_var_m2", "crlb_rw_var_m2")
 
 
 def _open_bounds(store_path: Path) -> sqlite3.Connection:
@@ -395,6 +414,10 @@ def _open_bounds(store_path: Path) -> sqlite3.Connection:
     try:
         db = sqlite3.connect(store_path)
         db.execute(_BOUNDS_SCHEMA)
+        have = {row[1] for row in db.execute("PRAGMA table_info(trial_bounds)")}
+        for column in _BOUNDS_COLUMNS:
+            if column not in have:  # a store of an earlier version: its rows are refilled
+                db.execute(f"ALTER TABLE trial_bounds ADD COLUMN {column} REAL")
         db.commit()
     except sqlite3.Error as exc:
         raise GeofixError(f"cannot open results store {store_path}: {exc}") from None
@@ -403,19 +426,30 @@ def _open_bounds(store_path: Path) -> sqlite3.Connection:
 
 def _record_info(db: sqlite3.Connection, shash: str, info: TrialInfo) -> None:
     row = (shash, info.index, info.crlb_var_m2, info.crlb_batch_var_m2, *info.truth_end)
+    row += (info.crlb_track_var_m2, info.crlb_rw_var_m2)
+    names = "scenario_hash, trial, crlb_var_m2, crlb_batch_var_m2, truth_end_x, truth_end_y, "
+    names += ", ".join(_BOUNDS_COLUMNS)
     with db:
-        db.execute("INSERT OR REPLACE INTO trial_bounds VALUES (?, ?, ?, ?, ?, ?)", row)
+        db.execute(
+            f"INSERT OR REPLACE INTO trial_bounds ({names}) VALUES ({', '.join('?' * 8)})", row
+        )
 
 
 def _all_infos(db: sqlite3.Connection, shash: str, scenario, grid, simulate_trial) -> dict:
     """Stored trial infos of a scenario, computing (and storing) those that are missing."""
-    cur = db.execute("SELECT * FROM trial_bounds WHERE scenario_hash = ?", (shash,))
+    cur = db.execute(
+        "SELECT trial, crlb_var_m2, crlb_batch_var_m2, truth_end_x, truth_end_y, "
+        + ", ".join(_BOUNDS_COLUMNS)
+        + " FROM trial_bounds WHERE scenario_hash = ?",
+        (shash,),
+    )
     infos = {
-        int(t): TrialInfo(int(t), _real(v), _real(b), (float(x), float(y)))
-        for _, t, v, b, x, y in cur
+        int(t): TrialInfo(int(t), _real(v), _real(b), (float(x), float(y)), _real(tr), _real(rw))
+        for t, v, b, x, y, tr, rw in cur
     }
     for index in range(scenario.trials):
-        if index not in infos or np.isnan(infos[index].crlb_var_m2):
+        info = infos.get(index)
+        if info is None or np.isnan([info.crlb_var_m2, info.crlb_rw_var_m2]).any():
             infos[index] = trial_info(scenario, grid, simulate_trial(scenario, grid, index))
             _record_info(db, shash, infos[index])
     return infos
@@ -426,7 +460,11 @@ def _real(value) -> float:
 
 
 def _with_integrity(frame: pd.DataFrame, infos: dict) -> pd.DataFrame:
-    """Add ``end_mahalanobis`` and ``crlb_m``; drop the per-sample array columns."""
+    """Add each trial's integrity and bound columns; drop the per-sample array columns.
+
+    ``end_mahalanobis``, ``crlb_m`` and ``track_ms_m2`` (mean squared error along the
+    track, m^2).
+    """
     frame = frame.copy()
     ends = [np.asarray(infos[int(t)].truth_end) for t in frame["trial"]]
     frame["end_mahalanobis"] = [
@@ -434,6 +472,7 @@ def _with_integrity(frame: pd.DataFrame, infos: dict) -> pd.DataFrame:
         for est, end, cov in zip(frame["estimate"], ends, frame["covariance"], strict=True)
     ]
     frame["crlb_m"] = [float(np.sqrt(infos[int(t)].crlb_var_m2)) for t in frame["trial"]]
+    frame["track_ms_m2"] = [float(np.mean(np.asarray(e, float) ** 2)) for e in frame["error"]]
     return frame.drop(columns=["estimate", "error", "covariance"])
 
 

@@ -13,21 +13,39 @@ read along the *true* track (the bound is a property of the terrain actually cro
 - **Batch** bound (a rigid translation of a whole track, as TERCOM / ICCP estimate it):
   ``J = sum_k I_k`` and ``cov >= J^-1``; singular (infinite) on a flat or straight-ridge
   track.
-- **Recursive** bound (posterior CRLB, Tichavský et al. 1998) for the filters, whose state
-  is the position error with additive process noise ``Q_k`` per axis (the growth of the
-  INS prior variance between samples, exactly as :func:`geofix.filters.base.motions`
-  derives it) and a Gaussian prior of variance ``sigma_position[0]^2`` at the first
-  sample::
+- **Error-state** bound (posterior CRLB, Tichavský, Muravchik & Nehorai 1998, of the
+  linear INS error state of :mod:`geofix.nav.errstate`, the one the simulator draws): the
+  state ``x`` has transitions ``F_k``, process noise ``Q_k`` (singular, often zero: the
+  errors are a deterministic function of per-trial constants) and a Gaussian prior whose
+  covariance is the simulator's second moments; the position error is ``H x``. With a
+  linear-Gaussian motion and a measurement whose information about the position is
+  ``I_k``, the recursion ``J_k = (F_k J_{k-1}^-1 F_k^T + Q_k)^-1 + H^T I_k H`` is run in
+  covariance form (no inverse of a singular ``Q_k`` or prior is needed)::
+
+      P_k^- = F_k P_{k-1} F_k^T + Q_k
+      P_k   = P_k^- - P_k^- G_k^T (I + G_k P_k^- G_k^T)^-1 G_k P_k^-
+
+  with ``G_k^T G_k = H^T I_k H`` (``G_k = Lambda^(1/2) U^T H`` from the eigenvalues of
+  ``I_k``), plus the rows ``C / sigma_v`` of a DVL velocity measurement when the trial
+  has one. The bound at sample ``k`` is ``H P_k H^T``; ``crlb_m`` is its trace at the last
+  sample, ``crlb_track_m`` its trace averaged along the track. This is exactly the
+  covariance of a Kalman filter on a linear map (see the tests).
+- **Random-walk** bound (the earlier model, ``crlb_rw_m``): the position error as a
+  white random walk with per-axis process noise ``Q_k`` (the growth of the INS prior
+  variance between samples, as :func:`geofix.filters.base.motions` derives it) and a
+  Gaussian prior of variance ``sigma_position[0]^2``::
 
       J_0 = I / sigma_0^2 + I_0
       J_k = (J_{k-1}^-1 + Q_k I)^-1 + I_k
 
-  The bound on the RMS position error at sample ``k`` is ``sqrt(trace(J_k^-1))``.
+  It is not the limit of the simulated INS (its errors are far from white), and a
+  filter can end below it.
 
-Map gradients are central differences (:func:`geofix.maps.terrain.gradient`) read by
-bilinear interpolation at every footprint; a gradient that cannot be formed (next to
-no-data) carries no information. A gravimeter's first-order lag is ignored (the bound is
-then slightly optimistic).
+Map gradients are the exact gradient of the bilinear interpolant that the simulator and
+the filters read (:meth:`geofix.maps.grid.Grid.sample_gradient`) at every true
+footprint; a gradient that cannot be formed (next to no-data) carries no information.
+A gravimeter's first-order lag and the heading error's rotation of off-nadir footprints
+are ignored (the bound is then slightly optimistic).
 """
 
 from __future__ import annotations
@@ -50,13 +68,20 @@ class TrialBound:
     Attributes
     ----------
     recursive_var_m2 : float
-        ``trace(J_n^-1)`` of the recursive bound at the last sample, m^2.
+        Trace of the error-state bound at the last sample, m^2 (the random-walk one for a
+        trial without an INS error model).
     batch_var_m2 : float
         ``trace(J^-1)`` of the batch bound over the last leg, m^2 (``inf`` if singular).
+    track_var_m2 : float
+        Trace of the error-state bound averaged over the samples, m^2.
+    rw_var_m2 : float
+        ``trace(J_n^-1)`` of the random-walk bound at the last sample, m^2.
     """
 
     recursive_var_m2: float
     batch_var_m2: float
+    track_var_m2: float = float("nan")
+    rw_var_m2: float = float("nan")
 
     @property
     def recursive_m(self) -> float:
@@ -168,14 +193,74 @@ def trial_information(trial, grid: Grid, beam_var=None) -> np.ndarray:
     return sample_information(gx, gy, beam_var, valid=np.isfinite(trial.measured))
 
 
+def error_state_bound(es, info: np.ndarray, dvl: bool = True) -> np.ndarray:
+    """Posterior CRLB of the INS error state along a track, in covariance form.
+
+    Parameters
+    ----------
+    es : ErrorState
+        The linear error model (:func:`geofix.nav.errstate.error_state` along the truth).
+    info : numpy.ndarray
+        ``(n, 2, 2)`` per-sample information about the position, 1/m^2.
+    dvl : bool
+        Fold in the DVL velocity measurement when ``es.velocity_map`` is given.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, d, d)`` state covariance bounds (state units squared); the position block
+        is ``es.position_cov(...)``.
+    """
+    info = np.asarray(info, float)
+    n, d = info.shape[0], es.dim
+    velocity_rows = None
+    if dvl and es.velocity_map is not None and es.velocity_noise_var > 0:
+        velocity_rows = es.velocity_map / np.sqrt(es.velocity_noise_var)
+    out = np.empty((n, d, d))
+    p = es.prior_cov
+    for k in range(n):
+        if k:
+            f = es.transitions[k - 1]
+            p = f @ p @ f.T + es.process_cov[k - 1]
+        p = information_update(p, measurement_rows(info[k], es.position_map, velocity_rows))
+        out[k] = p
+    return out
+
+
+def measurement_rows(info_k: np.ndarray, position_map: np.ndarray, extra=None) -> np.ndarray:
+    """Rows ``G`` with ``G^T G = H^T I_k H`` (plus ``extra`` rows), ``(r, d)``."""
+    values, vectors = np.linalg.eigh(0.5 * (info_k + info_k.T))
+    rows = np.sqrt(np.clip(values, 0.0, None))[:, None] * (vectors.T @ position_map)
+    return rows if extra is None else np.vstack([rows, extra])
+
+
+def information_update(p: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``P - P G^T (I + G P G^T)^-1 G P``: ``(P^-1 + G^T G)^-1`` without inverting ``P``."""
+    pg = p @ rows.T
+    s = np.eye(rows.shape[0]) + rows @ pg
+    p = p - pg @ np.linalg.solve(s, pg.T)
+    return 0.5 * (p + p.T)
+
+
+def trial_error_state(trial):
+    """The trial's :class:`~geofix.nav.errstate.ErrorState` along its truth (None without)."""
+    from geofix.nav.errstate import error_state
+
+    model = getattr(trial, "ins_model", None)
+    if model is None:
+        return None
+    return error_state(model, trial.times, trial.truth)
+
+
 def trial_crlb(trial, grid: Grid, beam_var=None) -> TrialBound:
-    """Recursive (whole mission) and batch (last leg) CRLBs of one trial.
+    """Error-state, random-walk (whole mission) and batch (last leg) CRLBs of one trial.
 
     Parameters
     ----------
     trial : Trial
         The mission; its true track, headings, beam offsets, measurements (NaN beams carry
-        no information) and prior ``sigma_position``.
+        no information), prior ``sigma_position`` and ``ins_model`` (the error-state
+        bound needs it; without one the random-walk bound stands in).
     grid : Grid
         The map the measurements were drawn from.
     beam_var : float or array_like, optional
@@ -190,15 +275,23 @@ def trial_crlb(trial, grid: Grid, beam_var=None) -> TrialBound:
     info = trial_information(trial, grid, beam_var)
     sigma = np.asarray(trial.sigma_position, float)
     rec = recursive_bound(info, process_variances(sigma), float(sigma[0]) ** 2)
+    rw = float(np.trace(rec[-1]))
     last = trial.leg_slices()[-1]
-    batch = inverse_trace(info[last].sum(axis=0))
-    return TrialBound(float(np.trace(rec[-1])), float(batch))
+    batch = float(inverse_trace(info[last].sum(axis=0)))
+    es = trial_error_state(trial)
+    if es is None:
+        track = float(np.mean(np.trace(rec, axis1=1, axis2=2)))
+        return TrialBound(rw, batch, track, rw)
+    pos = es.position_cov(error_state_bound(es, info))
+    traces = np.trace(pos, axis1=1, axis2=2)
+    return TrialBound(float(traces[-1]), batch, float(np.mean(traces)), rw)
 
 
 def bound_track(trial, grid: Grid, beam_var=None) -> np.ndarray:
-    """The recursive bound on the RMS position error at every sample of a trial, metres.
+    """The bound on the RMS position error at every sample of a trial, metres.
 
-    Parameters are those of :func:`trial_crlb`.
+    The error-state bound of :func:`trial_crlb` (the random-walk one for a trial without
+    an INS error model). Parameters are those of :func:`trial_crlb`.
 
     Returns
     -------
@@ -206,6 +299,10 @@ def bound_track(trial, grid: Grid, beam_var=None) -> np.ndarray:
         ``(n,)`` ``sqrt(trace(J_k^-1))``, metres.
     """
     info = trial_information(trial, grid, beam_var)
+    es = trial_error_state(trial)
+    if es is not None:
+        pos = es.position_cov(error_state_bound(es, info))
+        return np.sqrt(np.trace(pos, axis1=-2, axis2=-1))
     sigma = np.asarray(trial.sigma_position, float)
     rec = recursive_bound(info, process_variances(sigma), float(sigma[0]) ** 2)
     return np.sqrt(np.trace(rec, axis1=-2, axis2=-1))

@@ -55,7 +55,13 @@ def summarize(results_df: pd.DataFrame, cell_m: float) -> dict[str, MethodStats]
         ``false_fix_rate`` (share of trials ending more than 3 cells off, not flagged
         ambiguous, and outside the method's 3-sigma ellipse or without a covariance; see
         :func:`false_fix_rate`), ``ambiguous_rate``, ``mean_evaluations`` (per trial) and
-        ``leg_mean_errors_m`` (mean end error of every leg, metres).
+        ``leg_mean_errors_m`` (mean end error of every leg, metres), ``rms_error_m``
+        (end-point RMS error ``sqrt(mean(e^2))`` over the trials that did not fail,
+        metres) and ``nees`` (mean normalised estimation error squared of the end point,
+        ``e^T C^-1 e`` with the method's own last covariance ``C``, over the trials that
+        give one: about 2 for a consistent 2-D estimate; None without covariances) and
+        ``track_rms_error_m`` (RMS of the error over every sample of every trial that did
+        not fail, metres, from the column ``track_ms_m2``; None without it).
     """
     methods = list(dict.fromkeys(results_df["method"]))
     return {m: method_stats(results_df[results_df["method"] == m], cell_m) for m in methods}
@@ -82,7 +88,21 @@ def method_stats(rows: pd.DataFrame, cell_m: float) -> MethodStats:
         ambiguous_rate=_num(rows["ambiguous"].astype(bool).mean() if len(rows) else math.nan),
         mean_evaluations=_num(rows["evaluations"].mean() if len(rows) else math.nan),
         leg_mean_errors_m=leg_mean_errors(ok["leg_errors_m"]),
+        rms_error_m=_num(np.sqrt(np.mean(end**2)) if end.size else math.nan),
+        nees=_num(mean_nees(ok)),
+        track_rms_error_m=_num(
+            np.sqrt(ok["track_ms_m2"].mean()) if "track_ms_m2" in ok and len(ok) else math.nan
+        ),
     )
+
+
+def mean_nees(ok: pd.DataFrame) -> float:
+    """Mean of ``end_mahalanobis^2`` over the rows that have one (NaN without)."""
+    if "end_mahalanobis" not in ok:
+        return math.nan
+    d = ok["end_mahalanobis"].to_numpy(dtype=float)
+    d = d[np.isfinite(d)]
+    return float(np.mean(d**2)) if d.size else math.nan
 
 
 def success_rates(end_errors: np.ndarray, trials: int, cell_m: float) -> dict:

@@ -6,8 +6,10 @@ track; after each fix the INS is reset to the fix's last position, so leg ``k`` 
 - indicated positions ``fix_end[k-1] + (ins[j] - ins[r])`` for its samples ``j``, where
   ``r`` is the last sample of leg ``k-1`` (the INS displacement since the reset, added to
   the fix), and
-- a prior 1-sigma ``sqrt(sigma[0]**2 + max(sigma[j]**2 - sigma[r]**2, 0))``: the trial's
-  initial uncertainty standing in for the fix's, plus the INS error grown since the reset.
+- a prior 1-sigma ``sqrt(var_fix + max(sigma[j]**2 - sigma[r]**2, 0))``: the previous
+  fix's own uncertainty (the larger eigenvalue of its covariance, floored at a quarter
+  cell squared and capped at the free INS variance ``sigma[r]**2``; ``sigma[0]**2`` when
+  the fix gives no usable covariance) plus the INS error grown since the reset.
 
 A recursive method (``recursive`` True) is handed the whole mission as one problem and
 returns its estimate at every sample.
@@ -162,20 +164,25 @@ def _run_recursive(method, trial: Trial, grid: Grid, rng, log: _CallLog) -> None
 
 
 def _run_legs(method, trial: Trial, grid: Grid, rng, log: _CallLog) -> None:
-    fix_end = None
+    fix_end = fix_cov = None
     for part in trial.leg_slices():
         if fix_end is None:
             problem = trial.problem(grid, part)
         else:
-            problem = reset_problem(trial, grid, part, fix_end, part.start - 1)
+            problem = reset_problem(trial, grid, part, fix_end, part.start - 1, fix_cov)
         fix = log.call(method, problem, rng)
         track = np.asarray(fix.track, dtype=float)
         log.estimate[part] = track
-        fix_end = track[-1]
+        fix_end, fix_cov = track[-1], fix.covariance
 
 
 def reset_problem(
-    trial: Trial, grid: Grid, part: slice, fix_end: np.ndarray, reset: int
+    trial: Trial,
+    grid: Grid,
+    part: slice,
+    fix_end: np.ndarray,
+    reset: int,
+    fix_covariance: np.ndarray | None = None,
 ) -> MatchProblem:
     """The problem of samples ``part`` after resetting the INS to a fix.
 
@@ -191,18 +198,39 @@ def reset_problem(
         ``(2,)`` position of the previous fix at sample ``reset``, metres.
     reset : int
         Sample at which the INS was reset (the last sample of the previous leg).
+    fix_covariance : numpy.ndarray, optional
+        ``(2, 2)`` covariance of the previous fix, m^2.
 
     Returns
     -------
     MatchProblem
         Indicated track ``fix_end + ins[part] - ins[reset]`` (metres) and prior 1-sigma
-        ``sqrt(sigma[0]**2 + max(sigma[part]**2 - sigma[reset]**2, 0))`` (metres).
+        ``sqrt(var_fix + max(sigma[part]**2 - sigma[reset]**2, 0))`` (metres), ``var_fix``
+        from :func:`fix_variance`.
     """
     indicated = fix_end + (trial.indicated[part] - trial.indicated[reset])
     sigma = trial.sigma_position
     grown = np.maximum(sigma[part] ** 2 - sigma[reset] ** 2, 0.0)
+    start = fix_variance(fix_covariance, grid.cell_size, float(sigma[reset]), float(sigma[0]))
     problem = trial.problem(grid, part, indicated=indicated)
-    return dataclasses.replace(problem, sigma_position=np.sqrt(sigma[0] ** 2 + grown))
+    return dataclasses.replace(problem, sigma_position=np.sqrt(start + grown))
+
+
+def fix_variance(covariance, cell_m: float, free_sigma: float, initial_sigma: float) -> float:
+    """Per-axis prior variance a fix hands to the next leg, m^2.
+
+    The larger eigenvalue of ``covariance`` (m^2), at least ``(cell_m / 2)^2`` (a matcher
+    does not resolve a position within its cell) and at most ``free_sigma^2`` (the free
+    INS's variance at the reset: a fix is never worse than no fix); ``initial_sigma^2``
+    when the covariance is missing or not finite.
+    """
+    if covariance is None:
+        return initial_sigma**2
+    cov = np.asarray(covariance, dtype=float)
+    if cov.shape != (2, 2) or not np.isfinite(cov).all():
+        return initial_sigma**2
+    largest = float(np.linalg.eigvalsh(0.5 * (cov + cov.T))[-1])
+    return float(np.clip(largest, (0.5 * cell_m) ** 2, max(free_sigma**2, (0.5 * cell_m) ** 2)))
 
 
 def _result(trial: Trial, log: _CallLog) -> TrialResult:

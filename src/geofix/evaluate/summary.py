@@ -45,6 +45,15 @@ class MethodStats:
         Map look-ups or candidate scores per trial.
     leg_mean_errors_m : list
         Mean end error of every leg, metres.
+    rms_error_m : float or None
+        End-point RMS error over the trials that did not fail, metres (to compare with
+        the campaign's ``crlb_m``).
+    nees : float or None
+        Mean normalised estimation error squared of the end point against the method's
+        own covariance (about 2 for a consistent 2-D estimate).
+    track_rms_error_m : float or None
+        RMS error along the track, over samples and trials, metres (to compare with
+        ``crlb_track_m``).
     more : dict
         Keys this version does not know (read back from a newer file).
     """
@@ -63,6 +72,9 @@ class MethodStats:
     ambiguous_rate: float | None = None
     mean_evaluations: float | None = None
     leg_mean_errors_m: list[float | None] = field(default_factory=list)
+    rms_error_m: float | None = None
+    nees: float | None = None
+    track_rms_error_m: float | None = None
     more: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
@@ -93,6 +105,10 @@ class CampaignSummary:
         :mod:`geofix.evaluate.crlb`).
     crlb_batch_m : float or None
         The same for a rigid batch fix of the last leg (None where singular).
+    crlb_track_m : float or None
+        The bound on the RMS error along the track (over samples and trials), metres.
+    crlb_rw_m : float or None
+        The bound of a random-walk position error on the end-point RMS error, metres.
     methods : dict
         ``{spec: MethodStats}`` in the order the methods were given.
     more : dict
@@ -100,7 +116,7 @@ class CampaignSummary:
 
     Examples
     --------
-    >>> s = CampaignSummary("demo", 2, 10.0, None, {"tercom": MethodStats(trials=2)})
+    >>> s = CampaignSummary("demo", 2, crlb_m=10.0, methods={"tercom": MethodStats(trials=2)})
     >>> s.to_json()["methods"]["tercom"]["trials"]
     2
     >>> CampaignSummary.from_json(s.to_json()) == s
@@ -111,6 +127,8 @@ class CampaignSummary:
     trials: int
     crlb_m: float | None = None
     crlb_batch_m: float | None = None
+    crlb_track_m: float | None = None
+    crlb_rw_m: float | None = None
     methods: dict[str, MethodStats] = field(default_factory=dict)
     more: dict[str, Any] = field(default_factory=dict)
 
@@ -120,6 +138,8 @@ class CampaignSummary:
             "scenario": self.scenario,
             "trials": self.trials,
             "crlb_m": self.crlb_m,
+            "crlb_track_m": self.crlb_track_m,
+            "crlb_rw_m": self.crlb_rw_m,
             "crlb_batch_m": self.crlb_batch_m,
         }
         methods = {spec: stats.to_json() for spec, stats in self.methods.items()}

@@ -65,9 +65,11 @@ import numpy as np
 from geofix._measurement_kernels import node_field_variance_kernel
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _grid_ops as ops
+from geofix.filters._pmf_errstate import conditional_motion, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
 from geofix.measurement import log_likelihood, predict_measurements
+from geofix.nav.errstate import error_state
 from geofix.problem import MatchProblem
 
 
@@ -91,6 +93,14 @@ class PmfState:
         Node likelihoods evaluated so far.
     regrids : int
         Times the log-density was moved onto a new grid.
+    kf : tuple or None
+        ``(mu (d,), Sigma (d, d))`` of the INS error state (``model=errstate``).
+    errstate : ErrorState or None
+        The error model along the indicated track (``model=errstate``).
+    indicated : numpy.ndarray or None
+        ``(2,)`` indicated position at the current sample (``model=errstate``), metres.
+    step : int
+        Current sample index.
     """
 
     log_weight: np.ndarray
@@ -100,6 +110,10 @@ class PmfState:
     cell: float
     evaluations: int = 0
     regrids: int = 0
+    kf: tuple | None = None
+    errstate: object = None
+    indicated: np.ndarray | None = None
+    step: int = 0
 
     @property
     def frame(self) -> tuple:
@@ -155,6 +169,12 @@ class Pmf(RecursiveFilter):
         Radius around the fix, map cells, for the integrity flag.
     ambiguity_mass : float
         Posterior share beyond that radius above which the fix is flagged ambiguous.
+    model : str
+        Motion model: ``rw`` (the INS error as a white random walk of per-axis variance
+        ``Motion.process_var``) or ``errstate`` (the INS error state of
+        :mod:`geofix.nav.errstate`, its prior the simulator's second moments, from
+        ``problem.extras["ins_model"]``; see :mod:`geofix.filters._pmf_errstate`). The
+        error-state model does not use a DVL (``mpf`` does).
 
     References
     ----------
@@ -188,8 +208,11 @@ class Pmf(RecursiveFilter):
     discretisation_noise: bool = True
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
+    model: str = "rw"
 
     def __post_init__(self) -> None:
+        if self.model not in ("rw", "errstate"):
+            raise ConfigError(f"pmf: model must be rw or errstate, got {self.model!r}")
         if self.points < 5 or self.points % 2 == 0:
             raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
         if self.max_points < self.points or self.max_points % 2 == 0:
@@ -208,6 +231,8 @@ class Pmf(RecursiveFilter):
         MatchError
             No node of the prior grid lies on valid map data.
         """
+        if self.model == "errstate":
+            return self._initialize_errstate(problem)
         cell = problem.grid.cell_size
         floor = self.min_spacing_cells * cell * (self.points - 1) / (2 * self.extent_sigmas)
         sigma = max(float(problem.sigma_position[0]), floor)
@@ -221,6 +246,8 @@ class Pmf(RecursiveFilter):
 
     def predict(self, state: PmfState, motion: Motion, rng: np.random.Generator) -> PmfState:
         """Follow the posterior with the grid, convolve with the motion kernel, shift."""
+        if self.model == "errstate":
+            return self._predict_errstate(state, motion)
         state = self._follow(state, motion.process_var)
         sd = np.sqrt(motion.process_var)
         kernels = tuple(ops.motion_kernel(sd / h) for h in state.spacing)
@@ -249,6 +276,69 @@ class Pmf(RecursiveFilter):
         mean, _ = self.estimate(state)
         radius = self.ambiguity_radius_cells * state.cell
         return ops.mass_beyond(state.log_weight, *state.frame, mean, radius) > self.ambiguity_mass
+
+    # ------------------------------------------------------------------ error state
+    def _initialize_errstate(self, problem: MatchProblem) -> PmfState:
+        model = problem.extras.get("ins_model")
+        if model is None:
+            raise MatchError("pmf: model=errstate needs the INS error model (extras['ins_model'])")
+        es = error_state(model, problem.times, problem.indicated)
+        cell = problem.grid.cell_size
+        floor = self.min_spacing_cells * cell * (self.points - 1) / (2 * self.extent_sigmas)
+        sigma = es.prior_cov
+        sigma[:2, :2] += floor**2 * np.eye(2)
+        centre = np.asarray(problem.indicated[0], dtype=float)
+        half = self.extent_sigmas * np.sqrt(np.diag(sigma[:2, :2]))
+        spacing, shape = self.grid_layout(half, cell)
+        xy = ops.node_positions(centre, np.eye(2), spacing, shape)
+        if not np.isfinite(predict_measurements(problem.grid, xy, 0.0, np.zeros((1, 2)))).any():
+            raise MatchError("pmf: the prior grid lies entirely off the map")
+        # position = indicated - dp: the position prior is N(indicated, Sigma_pp)
+        log_weight = ops.gaussian_log_density(xy, centre, sigma[:2, :2])
+        return PmfState(
+            ops.normalise(log_weight),
+            centre,
+            np.eye(2),
+            spacing,
+            cell,
+            kf=(np.zeros(es.dim), sigma),
+            errstate=es,
+            indicated=centre,
+        )
+
+    def _predict_errstate(self, state: PmfState, motion: Motion) -> PmfState:
+        es, k = state.errstate, state.step
+        mean, cov = self.estimate(state)
+        mu, sigma = replace_marginal(*state.kf, state.indicated - mean, cov)
+        f, q = es.transitions[k], es.process_cov[k]
+        g, h, kernel = conditional_motion(mu, sigma, f, q)
+        indicated = state.indicated + np.asarray(motion.displacement, dtype=float)
+        shift = indicated - g @ state.indicated - h  # position' = G position + shift
+        moved_mean = g @ mean + shift
+        moved_cov = g @ cov @ g.T + kernel
+        moved = replace(state, centre=g @ state.centre + shift, axes=g @ state.axes)
+        (centre, axes, spacing), shape = self.ideal_frame(moved, moved_mean, moved_cov)
+        g_inv = np.linalg.inv(g)
+        pulled = (g_inv @ (centre - shift), g_inv @ axes, spacing)
+        fallback = (mean, g_inv @ moved_cov @ g_inv.T)
+        log_weight = ops.resample_grid(state.log_weight, state.frame, pulled, fallback, shape)
+        along = np.einsum("ij,ik,kj->j", axes, kernel, axes)  # K along the new grid axes
+        kernels = tuple(
+            ops.motion_kernel(np.sqrt(max(v, 0.0)) / s) for v, s in zip(along, spacing, strict=True)
+        )
+        mu_next = f @ mu
+        sigma_next = f @ sigma @ f.T + q
+        return replace(
+            state,
+            log_weight=ops.convolve_log(log_weight, kernels),
+            centre=centre,
+            axes=axes,
+            spacing=spacing,
+            kf=(mu_next, 0.5 * (sigma_next + sigma_next.T)),
+            indicated=indicated,
+            step=k + 1,
+            regrids=state.regrids + 1,
+        )
 
     # ------------------------------------------------------------------ the moving grid
     def _follow(self, state: PmfState, process_var: float) -> PmfState:

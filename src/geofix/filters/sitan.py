@@ -15,7 +15,12 @@ error state ``X = [dx, dy, dh, dvx, dvy]``:
 Motion: ``X(k+1) = Phi X(k) + W(k)`` with ``Phi = [[1,0,0,T,0],[0,1,0,0,T],[0,0,1,0,0],
 [0,0,0,1,0],[0,0,0,0,1]]`` (``T`` the step duration) and white ``W``: per-axis position
 variance ``Motion.process_var`` (the growth of the INS prior variance over the step),
-velocity variance ``velocity_walk^2 T`` and bias variance ``bias_walk^2 T``.
+velocity variance ``velocity_walk^2 T`` and bias variance ``bias_walk^2 T``. The INS
+prior's variance growth already holds the drift that the velocity states carry, so the
+position noise is only the part of that growth the velocity states do not explain
+(:func:`position_process_var`): the drift is not counted twice. ``drift_in_velocity=false``
+restores the full growth as position noise, for an INS error known to be a pure position
+random walk.
 
 Measurement (stochastic terrain linearisation): one row per valid beam,
 ``H = [k_x, k_y, 1, 0, 0]`` with the slopes of a least-squares plane fitted to the map
@@ -291,6 +296,7 @@ class _EkfSettings:
     velocity_walk: float = 1e-4
     beta: float = 0.95
     consistency_bound: float = 3.0
+    drift_in_velocity: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 < self.beta < 1.0:
@@ -305,9 +311,37 @@ class _EkfSettings:
             max(position_sigma, 1e-3), self.bias_sigma, self.velocity_sigma_m_s
         )
 
-    def _predict_arrays(self, x, cov, motion: Motion):
-        q = process_noise(motion.dt, motion.process_var, self.velocity_walk, self.bias_walk)
+    def _predict_arrays(self, x, cov, motion: Motion, elapsed: float):
+        position_var = motion.process_var
+        if self.drift_in_velocity:
+            position_var = position_process_var(
+                position_var, elapsed, motion.dt, self.velocity_sigma_m_s, self.velocity_walk
+            )
+        q = process_noise(motion.dt, position_var, self.velocity_walk, self.bias_walk)
         return ekf_predict(x, cov, transition(motion.dt), q)
+
+
+#: Smallest per-step position process variance, m^2 (as the motion model's floor).
+MIN_POSITION_VAR = 1e-6
+
+
+def position_process_var(
+    prior_growth: float, elapsed: float, dt: float, velocity_sigma: float, velocity_walk: float
+) -> float:
+    """Per-axis position noise of one step net of the drift the velocity states carry, m^2.
+
+    The velocity-error states (prior ``velocity_sigma`` m/s, random walk ``velocity_walk``
+    m/s per sqrt(s)) give the position a variance ``V(t) = velocity_sigma^2 t^2 +
+    velocity_walk^2 t^3 / 3`` after ``t`` seconds; the step from ``elapsed`` to ``elapsed
+    + dt`` keeps ``prior_growth - (V(elapsed + dt) - V(elapsed))``, at least
+    :data:`MIN_POSITION_VAR`.
+    """
+
+    def v(t: float) -> float:
+        return velocity_sigma**2 * t * t + velocity_walk**2 * t**3 / 3.0
+
+    explained = v(elapsed + dt) - v(elapsed)
+    return max(float(prior_growth) - explained, MIN_POSITION_VAR)
 
 
 # ---------------------------------------------------------------------- SITAN
@@ -329,6 +363,8 @@ class SitanState:
         Samples used, samples with no usable beam, map reads spent.
     cell_m : float
         Map cell size, metres (the unit of the posterior-spread integrity test).
+    elapsed : float
+        Seconds since the first sample.
     """
 
     indicated: np.ndarray
@@ -339,6 +375,7 @@ class SitanState:
     skipped: int = 0
     evaluations: int = 0
     cell_m: float = 0.0
+    elapsed: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -366,6 +403,9 @@ class Sitan(_EkfSettings, RecursiveFilter):
     consistency_bound : float
         The fix is flagged ambiguous when the smoothed normalised innovation exceeds this
         (about 1 for a consistent filter; 3 means the innovations are ~1.7x too large).
+    drift_in_velocity : bool
+        The INS prior's variance growth is drift that the velocity states carry: the
+        position noise is only what they leave unexplained (see the module text).
     spread_cells, spread_mass : float
         It is also flagged when its Gaussian position posterior puts more than
         ``spread_mass`` of its probability farther than ``spread_cells`` map cells from
@@ -411,8 +451,14 @@ class Sitan(_EkfSettings, RecursiveFilter):
 
     def predict(self, state: SitanState, motion: Motion, rng: np.random.Generator) -> SitanState:
         """Propagate the error state over one step."""
-        x, cov = self._predict_arrays(state.x[None], state.cov[None], motion)
-        return replace(state, indicated=state.indicated + motion.displacement, x=x[0], cov=cov[0])
+        x, cov = self._predict_arrays(state.x[None], state.cov[None], motion, state.elapsed)
+        return replace(
+            state,
+            indicated=state.indicated + motion.displacement,
+            x=x[0],
+            cov=cov[0],
+            elapsed=state.elapsed + motion.dt,
+        )
 
     def update(self, state: SitanState, obs: Observation, grid: Grid, rng) -> SitanState:
         """Fold in one sample: linearise at the estimate, Kalman update, smooth the WRS."""
@@ -506,6 +552,8 @@ class BankState:
         True once the bank is at its smallest (no further re-initialisation).
     updates, skipped, evaluations : int
         Samples used, samples with no usable beam, map reads spent.
+    elapsed : float
+        Seconds since the first sample.
     """
 
     indicated: np.ndarray
@@ -520,6 +568,7 @@ class BankState:
     updates: int = 0
     skipped: int = 0
     evaluations: int = 0
+    elapsed: float = 0.0
 
     @property
     def best(self) -> int:
@@ -609,7 +658,7 @@ class SitanBank(_EkfSettings, RecursiveFilter):
         Re-initialise only when no such rival exists (the source re-centres "once the best
         match is obtained").
     patch_sigmas, fit_corr_scale, bias_sigma, bias_walk, velocity_sigma_m_s, velocity_walk, beta, \
-consistency_bound
+consistency_bound, drift_in_velocity
         As for :class:`Sitan`; ``beta`` is the source's SWRS smoothing constant (the source
         gives no value; 0.95 is a memory of about 20 samples, which halved the divergence
         rate of 0.9 on the source-002 scenario).
@@ -702,8 +751,14 @@ consistency_bound
 
     def predict(self, state: BankState, motion: Motion, rng: np.random.Generator) -> BankState:
         """Propagate every filter over one step."""
-        x, cov = self._predict_arrays(state.x, state.cov, motion)
-        return replace(state, indicated=state.indicated + motion.displacement, x=x, cov=cov)
+        x, cov = self._predict_arrays(state.x, state.cov, motion, state.elapsed)
+        return replace(
+            state,
+            indicated=state.indicated + motion.displacement,
+            x=x,
+            cov=cov,
+            elapsed=state.elapsed + motion.dt,
+        )
 
     def update(self, state: BankState, obs: Observation, grid: Grid, rng) -> BankState:
         """Update every filter, smooth their WRS, and re-initialise the bank when due."""

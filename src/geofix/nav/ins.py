@@ -40,10 +40,18 @@ matrix). Process noise is drawn from ``Q_d`` with the caller's generator.
 Heading (azimuth) error
 -----------------------
 ``psi_e(t) = psi_0 + eps_z t + W(t)``, with ``W`` a random walk of the gyro noise
-(variance ``N_g^2 t``). The INS mis-rotates the distance travelled: over each interval
-the indicated displacement is the true displacement rotated clockwise by the mean of
-``psi_e`` at the two ends, so a constant heading error rotates the indicated track
-rigidly about its start. The indicated heading is ``true heading + psi_e``.
+(variance ``N_g^2 t``); the indicated heading is ``true heading + psi_e``. How it moves
+the position is stated once, in :mod:`geofix.nav.errstate` (with references): in a free
+INS it rotates the *velocity gained since alignment* (the navigator is aligned at rest),
+and that velocity error runs through the Schuler loop; with ``ins.latitude_deg`` it also
+acts through the Earth rate as a level gyro drift ``Omega cos L psi_e`` of the north
+channel. Only without the Schuler loop (``schuler: false``) does a constant heading error
+rotate the indicated track rigidly about its start. ``ins.mode: dvl`` replaces the free
+INS by DVL dead reckoning, where the heading error rotates every travelled displacement.
+
+The simulation runs the linear recursion of :func:`geofix.nav.errstate.error_state`
+along the true track: the same transitions, process noise and prior that the
+Cramér–Rao bound and the error-state filters use.
 
 Per-trial draws
 ---------------
@@ -52,7 +60,10 @@ velocity error of magnitude ``velocity_error_m_s`` and accelerometer bias of mag
 ``accel_bias_ug`` (1 ug = 9.80665e-6 m/s^2), each in a uniformly random direction;
 gyro bias of magnitude ``gyro_bias_deg_h`` on each of the three axes (the two level
 channels and azimuth), each with a random sign; heading error ``|heading_error_deg|``
-with a random sign. The initial tilt error is zero.
+with a random sign. The initial tilt error is zero. In ``mode: dvl``: the initial
+position error as above, then a DVL bias of magnitude ``dvl.bias_m_s`` in a uniformly
+random direction, and random signs for the heading error, the azimuth gyro drift and the
+DVL scale error ``dvl.scale_error``.
 
 Prior uncertainty
 -----------------
@@ -70,8 +81,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.linalg import expm
 
+from geofix.nav.errstate import (
+    EARTH_RATE_RAD_S,
+    InsErrorModel,
+    error_state,
+    propagate,
+    propagate_cov,
+)
+
 if TYPE_CHECKING:
-    from geofix.nav.spec import InsSpec
+    from geofix.nav.spec import DvlSpec, InsSpec
     from geofix.nav.trajectory import TrueTrajectory
 
 GRAVITY_M_S2 = 9.80665
@@ -242,45 +261,40 @@ def _draw_trial_errors(spec: InsSpec, rng: np.random.Generator) -> dict:
     return dict(initial=initial, velocity=velocity, accel=accel, gyro=gyro, heading0=heading0)
 
 
-def _level_errors(times, spec: InsSpec, errors: dict, rng) -> np.ndarray:
-    """``(n, 2)`` Schuler-channel position errors, east and north columns."""
-    accel_psd, gyro_psd = _noise_psds(spec)
-    state = np.zeros((_STATES, 2))
-    state[0] = errors["initial"]
-    state[1] = errors["velocity"]
-    state[3] = errors["accel"]
-    state[4] = errors["gyro"][:2]
-    dts = np.diff(times)
-    white = rng.standard_normal((dts.size, _STATES, 2))
-    out = np.empty((times.size, 2))
-    out[0] = state[0]
-    for k, dt in enumerate(dts):
-        transition, _, factor = _discrete_cached(float(dt), spec.schuler, accel_psd, gyro_psd)
-        state = transition @ state + factor @ white[k]
-        out[k + 1] = state[0]
-    return out
+def _draw_values(model: InsErrorModel, spec: InsSpec, rng: np.random.Generator) -> dict:
+    """The independent draws ``z`` of the error-state prior, and the named terms."""
+    if model.mode == "dvl":
+        initial = np.asarray(spec.initial_error_m, dtype=float) + rng.normal(
+            0.0, spec.initial_error_std_m, 2
+        )
+        bias = model.dvl_bias * _unit(rng.uniform(0.0, 2.0 * np.pi))
+        signs = rng.choice([-1.0, 1.0], size=3)
+        psi0, eps_z, scale = (
+            model.heading_error * signs[0],
+            model.gyro_bias * signs[1],
+            (model.dvl_scale_error * signs[2]),
+        )
+        z = np.array([*initial, psi0, eps_z, scale, *bias])
+        zero = np.zeros(2)
+        terms = dict(initial=initial, velocity=zero, accel=zero, gyro=np.array([0, 0, eps_z]))
+        return dict(z=z, heading0=psi0, heading_draws=(2, 3), **terms)
+    errors = _draw_trial_errors(spec, rng)
+    z = np.concatenate(
+        [
+            errors["initial"],
+            errors["velocity"],
+            errors["accel"],
+            errors["gyro"],
+            [errors["heading0"]],
+            np.zeros(2 if model.dvl_aiding else 0),
+        ]
+    )
+    return dict(z=z, heading_draws=(8, 9), **errors)
 
 
-def _heading_errors(times, spec: InsSpec, errors: dict, rng) -> np.ndarray:
-    """``(n,)`` azimuth error: initial + gyro drift * t + random walk, radians."""
-    dts = np.diff(times)
-    noise = spec.gyro_noise_deg_rt_h * DEG_PER_RT_H
-    steps = noise * np.sqrt(dts) * rng.standard_normal(dts.size)
-    walk = np.concatenate([[0.0], np.cumsum(steps)])
-    return errors["heading0"] + errors["gyro"][2] * (times - times[0]) + walk
-
-
-def _rotation_errors(positions: np.ndarray, heading_error: np.ndarray) -> np.ndarray:
-    """``(n, 2)`` accumulated error of displacements rotated clockwise by the heading error."""
-    step = np.diff(positions, axis=0)
-    angle = 0.5 * (heading_error[1:] + heading_error[:-1])
-    c1 = np.cos(angle) - 1.0
-    s = np.sin(angle)
-    err = np.column_stack([c1 * step[:, 0] + s * step[:, 1], -s * step[:, 0] + c1 * step[:, 1]])
-    return np.vstack([np.zeros((1, 2)), np.cumsum(err, axis=0)])
-
-
-def simulate_ins(true: TrueTrajectory, spec: InsSpec, rng: np.random.Generator) -> InsTrack:
+def simulate_ins(
+    true: TrueTrajectory, spec: InsSpec, rng: np.random.Generator, dvl: DvlSpec | None = None
+) -> InsTrack:
     """Integrate the INS errors along a true trajectory.
 
     Parameters
@@ -290,30 +304,40 @@ def simulate_ins(true: TrueTrajectory, spec: InsSpec, rng: np.random.Generator) 
     spec : InsSpec
         Datasheet numbers (see the module docstring for how each enters).
     rng : numpy.random.Generator
-        Source of every random draw.
+        Source of every random draw: the per-trial constants, then the process noise.
+    dvl : DvlSpec, optional
+        The DVL of a ``mode: dvl`` navigator (required there, unused by a free INS).
 
     Returns
     -------
     InsTrack
-        Indicated positions (m) and heading (rad), and the error terms.
+        Indicated positions (m) and heading (rad), and the error terms;
+        ``rotation_error`` is the part of the position error due to the initial heading
+        error and the azimuth drift (no noise), ``schuler_error`` the rest.
     """
+    model = InsErrorModel.from_specs(spec, dvl if getattr(spec, "mode", "free") == "dvl" else None)
     times = np.asarray(true.times, dtype=float)
-    errors = _draw_trial_errors(spec, rng)
-    level = _level_errors(times, spec, errors, rng)
-    heading_error = _heading_errors(times, spec, errors, rng)
-    rotation = _rotation_errors(np.asarray(true.positions, dtype=float), heading_error)
-    position_error = level + rotation
+    es = error_state(model, times, true.positions)
+    draws = _draw_values(model, spec, rng)
+    x0 = es.prior_factor @ draws["z"]
+    white = rng.standard_normal((times.size - 1, es.dim))
+    states = propagate(es, x0, white)
+    heading_z = np.zeros_like(draws["z"])
+    heading_z[list(draws["heading_draws"])] = draws["z"][list(draws["heading_draws"])]
+    rotation = propagate(es, es.prior_factor @ heading_z) @ es.position_map.T
+    position_error = states @ es.position_map.T
+    heading_error = states[:, model.names.index("psi")]
     return InsTrack(
         indicated=true.positions + position_error,
         heading=true.heading + heading_error,
         position_error=position_error,
-        schuler_error=level,
+        schuler_error=position_error - rotation,
         rotation_error=rotation,
         heading_error=heading_error,
-        initial_error=errors["initial"],
-        velocity_error=errors["velocity"],
-        accel_bias=errors["accel"],
-        gyro_bias=errors["gyro"],
+        initial_error=draws["initial"],
+        velocity_error=draws["velocity"],
+        accel_bias=draws["accel"],
+        gyro_bias=draws["gyro"],
     )
 
 
@@ -368,7 +392,24 @@ def _heading_variance(spec: InsSpec, times: np.ndarray, distance: np.ndarray) ->
     return psi0**2 * distance**2 + eps_z**2 * drift_sum**2 + noise**2 * walk
 
 
-def position_sigma(spec: InsSpec, times, distance_m=None) -> np.ndarray:
+def _earth_rate_variance(spec: InsSpec, times: np.ndarray) -> np.ndarray:
+    """Variance of the north error from ``Omega cos L psi_0`` acting as a level drift, m^2."""
+    lat = getattr(spec, "latitude_deg", None)
+    if lat is None:
+        return np.zeros_like(times)
+    drift = EARTH_RATE_RAD_S * np.cos(np.radians(lat)) * np.radians(spec.heading_error_deg)
+    return schuler_gyro_error(drift, times - times[0]) ** 2
+
+
+def _dvl_variance(spec: InsSpec, dvl: DvlSpec, times, distance) -> np.ndarray:
+    """Largest eigenvalue of the DVL dead-reckoning position covariance, m^2 (straight)."""
+    track = np.column_stack([np.zeros_like(distance), distance])
+    es = error_state(InsErrorModel.from_specs(spec, dvl), times, track)
+    cov = es.position_cov(propagate_cov(es))
+    return np.linalg.eigvalsh(cov)[:, -1]
+
+
+def position_sigma(spec: InsSpec, times, distance_m=None, dvl: DvlSpec | None = None) -> np.ndarray:
     """Prior per-axis 1-sigma of the indicated position error at each time.
 
     The covariance of the level-channel state is propagated with the same exact
@@ -380,7 +421,15 @@ def position_sigma(spec: InsSpec, times, distance_m=None) -> np.ndarray:
     cross-track error of a straight track, with ``psi_e`` as in the module docstring
     (initial error, azimuth drift, random walk); it is added in full to *each* axis
     (conservative: its direction depends on the track heading, which this prior ignores;
-    on a curved track ``distance * psi`` bounds the chord error from above).
+    on a curved track ``distance * psi`` bounds the chord error from above). This
+    rotation-of-distance term is the no-Schuler limit of the free INS and bounds the
+    Schuler-loop response from above (``sin(omega_s t) / omega_s <= t``). With
+    ``ins.latitude_deg`` the Earth-rate coupling of ``psi_0`` (see
+    :mod:`geofix.nav.errstate`) adds its squared north error.
+
+    In ``mode: dvl`` the variance is the largest eigenvalue of the position block of the
+    error-state covariance propagated along a straight track of the given distance (the
+    initial error, heading, azimuth drift, scale factor, bias and noise of the DVL).
 
     Parameters
     ----------
@@ -391,6 +440,8 @@ def position_sigma(spec: InsSpec, times, distance_m=None) -> np.ndarray:
     distance_m : array_like, optional
         ``(n,)`` distance travelled at each time, metres (e.g. nominal speed * time).
         Without it the heading-error term is left out.
+    dvl : DvlSpec, optional
+        The DVL of a ``mode: dvl`` navigator.
 
     Returns
     -------
@@ -398,7 +449,14 @@ def position_sigma(spec: InsSpec, times, distance_m=None) -> np.ndarray:
         ``(n,)`` 1-sigma per axis, metres.
     """
     times = np.atleast_1d(np.asarray(times, dtype=float))
-    variance = _level_variance(spec, times)
+    if getattr(spec, "mode", "free") == "dvl":
+        distance = np.zeros_like(times) if distance_m is None else distance_m
+        distance = np.broadcast_to(np.asarray(distance, dtype=float), times.shape)
+        sigma0 = prior_initial_sigma(spec)
+        variance = _dvl_variance(spec, dvl, times, distance - distance[0])
+        initial = np.max(np.asarray(spec.initial_error_m, float) ** 2) + spec.initial_error_std_m**2
+        return np.sqrt(np.maximum(variance - initial + sigma0**2, sigma0**2))
+    variance = _level_variance(spec, times) + _earth_rate_variance(spec, times)
     if distance_m is not None:
         distance = np.broadcast_to(np.asarray(distance_m, dtype=float), times.shape)
         variance = variance + _heading_variance(spec, times, distance - distance[0])

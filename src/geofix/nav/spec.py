@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from geofix._strict import Strict
@@ -13,6 +15,13 @@ class InsSpec(Strict):
     ``initial_error_m`` is a fixed ``[east, north]`` offset of the indicated start;
     ``initial_error_std_m`` adds a random per-axis Gaussian offset per trial.
     ``prior_sigma_m`` overrides the prior 1-sigma handed to the matchers.
+    ``mode`` is ``free`` (a free inertial navigator, the default: every other key as
+    above) or ``dvl`` (DVL-aided dead reckoning: the position integrates the ``dvl``
+    block's velocity, with its bias, noise and ``scale_error``, rotated by a heading of
+    error ``heading_error_deg`` drifting at ``gyro_bias_deg_h`` with noise
+    ``gyro_noise_deg_rt_h``; the accelerometer, velocity-error and Schuler keys are then
+    unused). ``latitude_deg`` (degrees, optional) switches on the Earth-rate coupling of
+    the heading error of a free INS (see :mod:`geofix.nav.errstate`).
     """
 
     initial_error_m: tuple[float, float] = (0.0, 0.0)
@@ -25,10 +34,17 @@ class InsSpec(Strict):
     accel_noise_ug_rt_hz: float = Field(default=0.0, ge=0)
     schuler: bool = True
     prior_sigma_m: float | None = Field(default=None, gt=0)
+    mode: Literal["free", "dvl"] = "free"
+    latitude_deg: float | None = Field(default=None, ge=-90, le=90)
 
 
 class DvlSpec(Strict):
-    """Doppler velocity log: per-axis white noise and a constant bias, m/s."""
+    """Doppler velocity log: per-axis white noise and a constant bias, m/s.
+
+    ``scale_error`` (dimensionless, e.g. 0.002 for 0.2 %) is the magnitude of a scale-factor
+    error of random sign; it is used by ``ins.mode: dvl`` (dead reckoning on the DVL).
+    """
 
     noise_std_m_s: float = Field(default=0.01, ge=0)
     bias_m_s: float = Field(default=0.0, ge=0)
+    scale_error: float = Field(default=0.0, ge=0)

@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator, model_validator
 
 from geofix._strict import Strict
 from geofix.errors import ConfigError
@@ -99,6 +99,12 @@ class Scenario(Strict):
         if not v.strip():
             raise ValueError("must not be empty")
         return v
+
+    @model_validator(mode="after")
+    def _dvl_mode_needs_dvl(self) -> Scenario:
+        if self.ins.mode == "dvl" and self.dvl is None:
+            raise ValueError("ins.mode: dvl needs a dvl block (noise_std_m_s, bias_m_s, ...)")
+        return self
 
     def map_path(self) -> str:
         """The map path as given, resolved against the scenario's folder."""

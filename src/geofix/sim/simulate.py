@@ -17,6 +17,7 @@ from geofix.errors import ConfigError, TrackOffMapError
 from geofix.maps.grid import Grid
 from geofix.memory import cells_bytes, check_allocation
 from geofix.nav.dvl import simulate_dvl
+from geofix.nav.errstate import InsErrorModel
 from geofix.nav.ins import position_sigma, simulate_ins
 from geofix.nav.trajectory import TrueTrajectory, true_trajectory
 from geofix.problem import footprint_xy
@@ -181,7 +182,7 @@ def _true_track(scenario: Scenario, grid: Grid, rng: np.random.Generator) -> Tru
 
 def _extras(scenario: Scenario, true: TrueTrajectory, unlagged, dvl_rng) -> dict:
     extras: dict = {"true_velocity": true.velocity}
-    if scenario.dvl is not None:
+    if scenario.dvl is not None and scenario.ins.mode == "free":
         extras["dvl_velocity"] = simulate_dvl(true, scenario.dvl, dvl_rng)
     if scenario.sensor.type == "gravimeter":
         extras["unlagged_measured"] = unlagged
@@ -212,8 +213,10 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
         as both already hold the map error. ``sigma_position`` is
         :func:`geofix.nav.ins.position_sigma` with the nominal distance ``speed * t``.
         ``extras`` holds ``"true_velocity"`` ``(n, 2)`` m/s, ``"dvl_velocity"`` ``(n, 2)``
-        m/s with a DVL, and for a gravimeter ``"unlagged_measured"`` ``(n, 1)`` and
-        ``"lag_s"``.
+        m/s with a DVL aiding a free INS (none in ``ins.mode: dvl``, where the DVL is the
+        navigator itself), and for a gravimeter ``"unlagged_measured"`` ``(n, 1)`` and
+        ``"lag_s"``. ``ins_model`` is the navigator's
+        :class:`~geofix.nav.errstate.InsErrorModel` (handed to the problems).
 
     Raises
     ------
@@ -240,7 +243,7 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
     offsets = sensor_offsets(scenario.sensor)
     x, y = footprint_xy(true.positions, true.heading, offsets)
     check_track_on_map(grid, np.stack([x, y], axis=-1), "true track")
-    ins = simulate_ins(true, scenario.ins, ins_rng)
+    ins = simulate_ins(true, scenario.ins, ins_rng, scenario.dvl)
     measured, unlagged = measure_with_unlagged(
         grid, true.positions, true.heading, offsets, scenario.sensor, sensor_rng, true.times
     )
@@ -257,7 +260,10 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
         measured=measured,
         offsets=offsets,
         sigma_position=position_sigma(
-            scenario.ins, true.times, distance_m=scenario.track.speed_m_s * true.times
+            scenario.ins,
+            true.times,
+            distance_m=scenario.track.speed_m_s * true.times,
+            dvl=scenario.dvl,
         ),
         leg_starts=true.leg_starts,
         noise_std=float(np.hypot(sensor.noise_std, sensor.map_error_std)),
@@ -265,6 +271,7 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
         sensor=sensor.type,
         index=int(index),
         extras=_extras(scenario, true, unlagged, dvl_rng),
+        ins_model=InsErrorModel.from_specs(scenario.ins, scenario.dvl),
     )
 
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geofix.maps.grid import Grid
+from geofix.nav.errstate import InsErrorModel
 from geofix.problem import MatchProblem, check_beam_noise_std
 
 _TRUTH_PREFIXES = ("true_", "unlagged_")
@@ -52,6 +53,10 @@ class Trial:
     beam_noise_std : numpy.ndarray or None
         ``(b,)`` noise 1-sigma of every beam, map units, on the same footing as
         ``noise_std`` (None: ``noise_std`` for every beam). Handed on to every problem.
+    ins_model : InsErrorModel or None
+        The navigator's datasheet error model (:mod:`geofix.nav.errstate`), for the
+        Cramér–Rao bound and the error-state filters; handed to every problem as
+        ``extras["ins_model"]`` (None for a replayed mission without one).
     """
 
     truth: np.ndarray
@@ -69,6 +74,7 @@ class Trial:
     index: int = 0
     extras: dict = field(default_factory=dict)
     beam_noise_std: np.ndarray | None = None
+    ins_model: InsErrorModel | None = None
 
     def __post_init__(self) -> None:
         if self.beam_noise_std is not None:
@@ -96,6 +102,8 @@ class Trial:
             for k, v in self.extras.items()
             if not k.startswith(_TRUTH_PREFIXES)
         }
+        if self.ins_model is not None:
+            extras["ins_model"] = self.ins_model
         return MatchProblem(
             grid=grid,
             indicated=ind,

@@ -1,0 +1,368 @@
+r"""The marginalised (Rao–Blackwellised) particle filter on the INS error state.
+
+The navigation error is the linear state of :mod:`geofix.nav.errstate`,
+``x = [dp, x_l]``: the horizontal position error ``dp`` (the only part the terrain or
+gravity measurement sees) and the linear INS error states ``x_l`` (velocity error, tilt,
+accelerometer bias, gyro drifts, heading error; scale and bias of a DVL dead reckoning;
+the bias of an aiding DVL). After Schön, Gustafsson & Nordlund (2005), "Marginalized
+particle filters for mixed linear/nonlinear state-space models", IEEE Trans. Signal
+Processing 53(7), and Nordlund & Gustafsson (2009), "Marginalized particle filter for
+accurate and reliable terrain-aided navigation", IEEE Trans. Aerospace and Electronic
+Systems 45(4):
+
+- particles carry ``dp`` (the vehicle position is ``indicated - dp``), each with the mean
+  ``m_i`` of a Kalman filter on ``x_l`` given its position history. The linear part's
+  model does not depend on the particle, so every Kalman filter has the same covariance
+  ``P``: one ``(d_l, d_l)`` matrix for the whole set, and the per-particle work is a few
+  matrix products over all particles at once;
+- **predict** (``x_k = F_k x_{k-1} + w_k``): the joint prediction of ``[dp, x_l]`` given
+  the particle's ``dp`` and ``N(m_i, P)`` has mean ``F_k [dp_i, m_i]`` and the shared
+  covariance ``S = F_k diag(0, P) F_k^T + Q_k``; the new ``dp_i`` is drawn from its
+  ``dp`` marginal (``S_pp``) and the linear mean and covariance are conditioned on it
+  (``m_i = mu_l + S_lp S_pp^-1 (dp_i - mu_p)``, ``P = S_ll - S_lp S_pp^-1 S_pl``): the
+  "measurement" of the linear states by the particle's motion, with the correlated process
+  noise of the exact discretisation handled in one step;
+- **update**: the terrain / gravity likelihood of every particle's footprints, the same
+  code as the point-mass and particle filters
+  (:func:`~geofix.measurement.predict_measurements`,
+  :func:`~geofix.measurement.log_likelihood`, the likelihood flattening of
+  :func:`~geofix.filters.pf.spread_field_variance` while the set is sparse); with an
+  aiding DVL, the velocity measurement ``v_INS - v_DVL = C x_l + noise`` updates every
+  Kalman filter (shared gain) and weighs each particle by its marginal likelihood
+  ``N(y; C m_i, C P C^T + R)``. ``v_INS`` is the indicated displacement over the step
+  divided by its duration;
+- resampling (systematic, at ``ESS < resample_threshold * M``), the particle count rule
+  and the stratified prior are those of :mod:`geofix.filters.pf`. The INS error is
+  (nearly) noise-free, so a particle's motion determines its linear states exactly and
+  ``P`` collapses: the uncertainty then lives in the spread of the ``m_i``, and copies
+  made by resampling would never separate again. After each resampling the joint
+  vectors ``z_i = [dp_i, m_i]`` are therefore moved by the kernel of Liu & West (2001,
+  "Combined parameter and state estimation in simulation-based filtering"):
+  ``z_i <- mean + a (z_i - mean) + h e_i``, ``e_i ~ N(0, C)`` with ``C`` the weighted
+  covariance of the set before resampling, ``a = sqrt(1 - h^2)`` (the set's mean and
+  covariance are kept) and Musso, Oudjane & Le Gland's (2001) bandwidth
+  ``h = (4 / (4 M))^(1/6)`` for the two particle dimensions. The move keeps the
+  correlation between a particle's position and its linear states.
+
+The prior is the error state's (the simulator's second moments), read from
+``problem.extras["ins_model"]`` (:class:`~geofix.nav.errstate.InsErrorModel`, put there
+for simulated trials); the error state is built along the *indicated* track. The
+estimate is the weighted mean and covariance of the particle positions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+import numpy as np
+from scipy.special import logsumexp
+from threadpoolctl import threadpool_limits
+
+from geofix.errors import ConfigError, MatchError
+from geofix.filters.base import Motion, Observation, RecursiveFilter
+from geofix.filters.pf import (
+    PfState,
+    effective_sample_size,
+    spread_field_variance,
+    systematic_resample,
+)
+from geofix.maps.grid import Grid
+from geofix.measurement import log_likelihood, predict_measurements
+from geofix.nav.errstate import ErrorState, error_state, step_velocities
+from geofix.problem import MatchProblem
+
+_P = slice(0, 2)
+_L = slice(2, None)
+#: Floor of the position variance of one prediction, m^2 (keeps ``S_pp`` invertible).
+MIN_STEP_VAR = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class MpfState:
+    """An immutable marginalised particle set.
+
+    Parameters
+    ----------
+    dp : numpy.ndarray
+        ``(M, 2)`` position error of every particle, metres (position = indicated - dp).
+    linear : numpy.ndarray
+        ``(M, d_l)`` Kalman means of the linear states.
+    cov : numpy.ndarray
+        ``(d_l, d_l)`` their shared covariance.
+    log_weight : numpy.ndarray
+        ``(M,)`` normalised log-weights.
+    indicated : numpy.ndarray
+        ``(2,)`` indicated position at the current sample, metres.
+    step : int
+        Current sample index.
+    model : ErrorState
+        The error model along the indicated track.
+    dvl : numpy.ndarray or None
+        ``(n, 2)`` ``v_INS - v_DVL`` at every sample, m/s, when a DVL aids.
+    cell, spacing : float
+        Map cell and typical particle spacing, metres.
+    evaluations, resamples : int
+        Likelihoods evaluated and resampling steps so far.
+    """
+
+    dp: np.ndarray
+    linear: np.ndarray
+    cov: np.ndarray
+    log_weight: np.ndarray
+    indicated: np.ndarray
+    step: int
+    model: ErrorState
+    dvl: np.ndarray | None
+    cell: float
+    spacing: float = 0.0
+    evaluations: int = 0
+    resamples: int = 0
+
+    @property
+    def positions(self) -> np.ndarray:
+        """``(M, 2)`` absolute particle positions, metres."""
+        return self.indicated - self.dp
+
+    @property
+    def weights(self) -> np.ndarray:
+        """``(M,)`` linear weights summing to one."""
+        w = np.exp(self.log_weight - self.log_weight.max())
+        return w / w.sum()
+
+
+@dataclass(frozen=True)
+class Mpf(RecursiveFilter):
+    """Marginalised particle filter settings (the particle settings as :class:`Pf`).
+
+    Parameters
+    ----------
+    particles : int
+        Least number of particles ``M`` (at least 10).
+    max_particles : int
+        Most particles, however wide the posterior.
+    max_spacing_cells : float
+        Wanted particle spacing, map cells.
+    extent_sigmas : float
+        Half-width of the stratified prior's box, prior standard deviations.
+    discretisation_noise : bool
+        Flatten the likelihood by the field's variance within one particle's share.
+    resample_threshold : float
+        Resample when ``ESS < resample_threshold * M``.
+    regularise : bool
+        Move the resampled particles with a shrunk Gaussian kernel (see the module text).
+    use_dvl : bool
+        Fold in an aiding DVL's velocity when the problem has one.
+    ambiguity_radius_cells, ambiguity_mass : float
+        Integrity flag: more than ``ambiguity_mass`` of the weight beyond that radius.
+    """
+
+    name: ClassVar[str] = "mpf"
+
+    particles: int = 5000
+    max_particles: int = 200_000
+    max_spacing_cells: float = 0.5
+    extent_sigmas: float = 4.0
+    discretisation_noise: bool = True
+    resample_threshold: float = 0.5
+    regularise: bool = True
+    use_dvl: bool = True
+    ambiguity_radius_cells: float = 3.0
+    ambiguity_mass: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.particles < 10 or self.max_particles < self.particles:
+            raise ConfigError(
+                f"mpf: particles must be at least 10 and at most max_particles, "
+                f"got {self.particles}"
+            )
+        if self.max_spacing_cells <= 0 or self.extent_sigmas <= 0:
+            raise ConfigError("mpf: max_spacing_cells and extent_sigmas must be positive")
+        if not 0.0 <= self.resample_threshold <= 1.0:
+            raise ConfigError("mpf: resample_threshold must be in [0, 1]")
+
+    # ------------------------------------------------------------------ protocol
+    def match(self, problem: MatchProblem, rng: np.random.Generator):
+        """Run the filter with BLAS on one thread.
+
+        The per-particle products are tall and thin (``M x d`` by ``d x d``): threads gain
+        nothing there, and a multi-threaded BLAS on a busy machine makes them many times
+        slower.
+        """
+        with threadpool_limits(limits=1, user_api="blas"):
+            return super().match(problem, rng)
+
+    def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> MpfState:
+        """A stratified sample of the error state's position prior, Kalman means given it.
+
+        Raises
+        ------
+        MatchError
+            The problem carries no INS error model, or no particle lies on the map.
+        """
+        model = problem.extras.get("ins_model")
+        if model is None:
+            raise MatchError("mpf: the problem has no INS error model (extras['ins_model'])")
+        es = error_state(model, problem.times, problem.indicated)
+        cell = problem.grid.cell_size
+        p0 = es.prior_cov
+        p0[_P, _P] += (1e-3 * cell) ** 2 * np.eye(2)
+        sd = np.sqrt(np.diag(p0[_P, _P]))
+        dp, h = self._stratified(sd, cell, rng)
+        start = np.asarray(problem.indicated[0], dtype=float)
+        if not np.isfinite(
+            predict_measurements(problem.grid, start - dp, 0.0, np.zeros((1, 2)))
+        ).any():
+            raise MatchError("mpf: the prior particles lie entirely off the map")
+        inv = np.linalg.inv(p0[_P, _P])
+        log_weight = -0.5 * np.einsum("mi,ij,mj->m", dp, inv, dp)
+        gain = p0[_L, _P] @ inv
+        return MpfState(
+            dp=dp,
+            linear=_times(dp, gain),
+            cov=_sym(p0[_L, _L] - gain @ p0[_P, _L]),
+            log_weight=log_weight - logsumexp(log_weight),
+            indicated=start,
+            step=0,
+            model=es,
+            dvl=self._dvl_innovations(problem, es),
+            cell=cell,
+            spacing=h,
+        )
+
+    def predict(self, state: MpfState, motion: Motion, rng: np.random.Generator) -> MpfState:
+        """Resample if the ESS is low, then the joint prediction conditioned on the new dp."""
+        if effective_sample_size(state.weights) < self.resample_threshold * state.dp.shape[0]:
+            state = self._resample(state, rng)
+        k = state.step
+        f = state.model.transitions[k]
+        q = state.model.process_cov[k]
+        s = f[:, _L] @ state.cov @ f[:, _L].T + q
+        s_pp = s[_P, _P] + MIN_STEP_VAR * np.eye(2)
+        mean = _times(state.dp, f[:, _P]) + _times(state.linear, f[:, _L])
+        dp = mean[:, _P] + _times(rng.standard_normal(state.dp.shape), np.linalg.cholesky(s_pp))
+        gain = np.linalg.solve(s_pp, s[_P, _L]).T
+        linear = mean[:, _L] + _times(dp - mean[:, _P], gain)
+        return replace(
+            state,
+            dp=dp,
+            linear=linear,
+            cov=_sym(s[_L, _L] - gain @ s[_P, _L]),
+            indicated=state.indicated + np.asarray(motion.displacement, dtype=float),
+            step=k + 1,
+        )
+
+    def update(self, state: MpfState, obs: Observation, grid: Grid, rng) -> MpfState:
+        """Terrain likelihood of every particle; the DVL's Kalman update when it aids."""
+        log_weight = state.log_weight
+        evaluations = state.evaluations
+        if state.dvl is not None and np.isfinite(state.dvl[obs.index]).all():
+            state, log_weight = self._dvl_update(state, state.dvl[obs.index], log_weight)
+        if np.isfinite(obs.values).any():
+            positions = state.positions
+            predicted = predict_measurements(grid, positions, obs.heading, obs.offsets)
+            var = obs.noise_var
+            if self.discretisation_noise and state.spacing > 0:
+                view = PfState(positions, state.log_weight, state.cell, spacing=state.spacing)
+                var = var + spread_field_variance(grid, view, obs, rng)
+            log_weight = log_weight + log_likelihood(predicted, obs.values, var)
+            evaluations += positions.shape[0]
+        return replace(
+            state, log_weight=log_weight - logsumexp(log_weight), evaluations=evaluations
+        )
+
+    def estimate(self, state: MpfState) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean ``(2,)`` and covariance ``(2, 2)`` of the positions, m and m^2."""
+        w = state.weights
+        positions = state.positions
+        mean = w @ positions
+        d = positions - mean
+        return mean, (d * w[:, None]).T @ d
+
+    def is_ambiguous(self, state: MpfState) -> bool:
+        """More than ``ambiguity_mass`` of the weight beyond the radius around the mean."""
+        mean, _ = self.estimate(state)
+        far = np.hypot(*(state.positions - mean).T) > self.ambiguity_radius_cells * state.cell
+        return bool(state.weights[far].sum() > self.ambiguity_mass)
+
+    # ------------------------------------------------------------------ helpers
+    def particle_count(self, area: float, cell: float) -> int:
+        """``area / (max_spacing_cells * cell)^2`` clipped to ``[particles, max_particles]``."""
+        wanted = area / (self.max_spacing_cells * cell) ** 2
+        return int(np.clip(np.ceil(wanted), self.particles, self.max_particles))
+
+    def _stratified(self, sd: np.ndarray, cell: float, rng) -> tuple[np.ndarray, float]:
+        """One particle at a random point of each square of a lattice over the box."""
+        side = 2.0 * self.extent_sigmas * sd
+        count = self.particle_count(float(side[0] * side[1]), cell)
+        h = float(np.sqrt(side[0] * side[1] / count))
+        per_axis = np.maximum(np.ceil(side / h).astype(int), 1)
+        while per_axis.prod() > self.max_particles:
+            per_axis = np.maximum(per_axis - 1, 1)
+        step = side / per_axis
+        axes = [(np.arange(m) - 0.5 * m) * s for m, s in zip(per_axis, step, strict=True)]
+        lattice = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 2)
+        return lattice + step * rng.random(lattice.shape), float(np.sqrt(step.prod()))
+
+    def _dvl_innovations(self, problem: MatchProblem, es: ErrorState) -> np.ndarray | None:
+        dvl = problem.extras.get("dvl_velocity")
+        if not self.use_dvl or dvl is None or es.velocity_map is None:
+            return None
+        return step_velocities(problem.times, problem.indicated) - np.asarray(dvl, float)
+
+    def _dvl_update(self, state: MpfState, y: np.ndarray, log_weight: np.ndarray):
+        c = state.model.velocity_map[:, _L]
+        r = state.model.velocity_noise_var * np.eye(2)
+        s = c @ state.cov @ c.T + r
+        gain = np.linalg.solve(s, c @ state.cov).T
+        innovation = y - _times(state.linear, c)
+        log_weight = log_weight - 0.5 * np.einsum(
+            "mi,ij,mj->m", innovation, np.linalg.inv(s), innovation
+        )
+        linear = state.linear + _times(innovation, gain)
+        cov = _sym(state.cov - gain @ c @ state.cov)
+        return replace(state, linear=linear, cov=cov), log_weight
+
+    def _move(self, joint, mean, cov, rng) -> np.ndarray:
+        """Liu & West's shrunk kernel move of the resampled ``[dp, m]`` (variance kept)."""
+        count = joint.shape[0]
+        h = (4.0 / (count * 4.0)) ** (1.0 / 6.0)  # Musso et al. (2001), 2 particle dims
+        shrink = np.sqrt(1.0 - h * h)
+        values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
+        factor = vectors * np.sqrt(np.clip(values, 0.0, None))
+        jitter = _times(rng.standard_normal(joint.shape), factor)
+        return mean + shrink * (joint - mean) + h * jitter
+
+    def _resample(self, state: MpfState, rng: np.random.Generator) -> MpfState:
+        """Systematic resample to the particle count of the posterior box, then moved."""
+        _, pos_cov = self.estimate(state)
+        sd = np.sqrt(np.clip(np.linalg.eigvalsh(pos_cov), 0.0, None))
+        area = float(np.prod(2.0 * self.extent_sigmas * sd))
+        count = self.particle_count(area, state.cell)
+        joint = np.hstack([state.dp, state.linear])
+        w = state.weights
+        mean = w @ joint
+        spread = joint - mean
+        cov = (spread * w[:, None]).T @ spread
+        index = systematic_resample(w, rng, count)
+        joint = joint[index]
+        if self.regularise:
+            joint = self._move(joint, mean, cov, rng)
+        dp, linear = joint[:, _P], joint[:, _L]
+        return replace(
+            state,
+            dp=dp,
+            linear=linear,
+            log_weight=np.full(count, -np.log(count)),
+            spacing=float(np.sqrt(area / count)),
+            resamples=state.resamples + 1,
+        )
+
+
+def _times(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """``rows @ matrix.T`` for ``(M, i)`` rows and a small ``(j, i)`` matrix."""
+    return rows @ matrix.T
+
+
+def _sym(a: np.ndarray) -> np.ndarray:
+    return 0.5 * (a + a.T)
