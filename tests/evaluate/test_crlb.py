@@ -178,3 +178,28 @@ def test_campaign_reports_the_bounds_and_refills_them_for_an_old_store(tmp_path,
     again = run_campaign(scen, ["tercom"], jobs=1, out_dir=tmp_path, progress=False)
     assert again.computed == 0
     assert again.summary["crlb_m"] == pytest.approx(result.summary["crlb_m"])
+
+
+def test_beam_gradients_from_a_crop_equal_the_whole_map_gradients():
+    from geofix.maps.grid import Grid
+    from geofix.maps.terrain import gradient
+    from geofix.match.base import footprint_xy
+
+    rng = np.random.default_rng(0)
+    values = rng.normal(size=(120, 150)).cumsum(axis=0)
+    values[50, 60] = np.nan
+    grid = Grid(values, 10.0, 20.0, 5.0, 4.0)
+    track = np.column_stack([rng.uniform(200, 600, 40), rng.uniform(150, 400, 40)])
+    track[0] = [10.0 + 149 * 5.0, 20.0 + 119 * 4.0]  # the last node, on the map's corner
+    track[1] = [10.0, 20.0]
+    track[2] = [5.0, 300.0]  # off the map
+    heading = rng.uniform(0, 2 * np.pi, 40)
+    offsets = np.array([[-12.0, 0.0], [0.0, 0.0], [12.0, 3.0]])
+    gx, gy = beam_gradients(grid, track, heading, offsets)
+    full_x, full_y = gradient(grid)
+    x, y = footprint_xy(track, heading, offsets)
+    ref_x = np.nan_to_num(grid.with_values(full_x).sample(x, y), nan=0.0)
+    ref_y = np.nan_to_num(grid.with_values(full_y).sample(x, y), nan=0.0)
+    np.testing.assert_allclose(gx, ref_x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(gy, ref_y, rtol=1e-9, atol=1e-12)
+    assert (gx == 0).sum() >= 1 and np.abs(gx).max() > 0

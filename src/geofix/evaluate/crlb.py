@@ -108,13 +108,36 @@ def beam_gradients(grid: Grid, track, heading, offsets) -> tuple[np.ndarray, np.
     tuple of numpy.ndarray
         ``(gx, gy)`` each ``(n, b)``, field units per metre; 0 where no gradient exists.
     """
-    gxg, gyg = gradient_grids(grid)
     x, y = footprint_xy(
         np.asarray(track, float), np.asarray(heading, float), np.asarray(offsets, float)
     )
+    window = _stencil_window(grid, x, y)
+    if window is None:
+        return np.zeros(x.shape), np.zeros(x.shape)
+    gxg, gyg = gradient_grids(grid.crop_cells(*window))
     gx = np.nan_to_num(gxg.sample(x, y), nan=0.0)
     gy = np.nan_to_num(gyg.sample(x, y), nan=0.0)
     return gx, gy
+
+
+def _stencil_window(grid: Grid, x, y) -> tuple[int, int, int, int] | None:
+    """``(col0, col1, row0, row1)`` of the cells whose central differences the reads use.
+
+    The bilinear stencils of the footprints on the map, widened by one cell (the
+    neighbours of a central difference) and clipped to the map: the gradient of this
+    crop equals the whole map's on every stencil node, so a worker never holds
+    gradient grids of the whole map. None when no footprint lies on the map.
+    """
+    ny, nx = grid.shape
+    col, row = grid.xy_to_cell(x, y)
+    inside = (col >= 0) & (col <= nx - 1) & (row >= 0) & (row <= ny - 1)
+    if not inside.any():
+        return None
+    c = np.minimum(np.floor(col[inside]), nx - 2)
+    r = np.minimum(np.floor(row[inside]), ny - 2)
+    c0, c1 = max(int(c.min()) - 1, 0), min(int(c.max()) + 3, nx)
+    r0, r1 = max(int(r.min()) - 1, 0), min(int(r.max()) + 3, ny)
+    return c0, c1, r0, r1
 
 
 def sample_information(gx, gy, beam_var, valid=None) -> np.ndarray:
