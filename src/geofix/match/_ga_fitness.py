@@ -23,8 +23,7 @@ def ga_costs(
     values,
     geometry,
     indicated,
-    sin_heading,
-    cos_heading,
+    heading,
     pivot,
     offsets,
     params,
@@ -45,10 +44,11 @@ def ga_costs(
         ``(4,)`` ``x0, y0, dx, dy`` of the map, metres.
     indicated : numpy.ndarray
         ``(n, 2)`` indicated track, metres.
-    sin_heading, cos_heading : numpy.ndarray
-        ``(n,)`` sine and cosine of the indicated heading (clockwise from north); the
-        heading ``psi - theta`` of a rotated track is formed by the angle-difference
-        identities, so no trigonometric call is made per sample.
+    heading : numpy.ndarray
+        ``(n,)`` indicated heading, radians clockwise from north. The footprints use
+        ``sin``/``cos`` of ``psi - theta`` exactly as the numpy formulation does (an
+        angle-difference identity would save two calls per sample but round differently,
+        and a GA amplifies a last-bit difference into another search path).
     pivot : numpy.ndarray
         ``(2,)`` pivot of rotation and scale, metres.
     offsets : numpy.ndarray
@@ -86,8 +86,8 @@ def ga_costs(
             rx, ry = indicated[i, 0] - pivot[0], indicated[i, 1] - pivot[1]
             px = pivot[0] + alpha * (c * rx - sn * ry) + tx
             py = pivot[1] + alpha * (sn * rx + c * ry) + ty
-            ss = sin_heading[i] * c - cos_heading[i] * sn  # sin(psi - theta)
-            cs = cos_heading[i] * c + sin_heading[i] * sn  # cos(psi - theta)
+            psi = heading[i] - theta
+            ss, cs = np.sin(psi), np.cos(psi)
             for b in range(s):
                 h = measured[i, b]
                 if h != h:

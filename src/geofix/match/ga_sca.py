@@ -362,15 +362,7 @@ class GaSca:
 
     def _fitness_args(self, ctx: _Context) -> tuple:
         """Arguments of :func:`ga_costs` before and after ``params``."""
-        head = (
-            ctx.values,
-            ctx.geometry,
-            ctx.indicated,
-            np.sin(ctx.heading),
-            np.cos(ctx.heading),
-            ctx.pivot,
-            ctx.offsets,
-        )
+        head = (ctx.values, ctx.geometry, ctx.indicated, ctx.heading, ctx.pivot, ctx.offsets)
         tail = (
             ctx.measured,
             ctx.decay,
