@@ -373,3 +373,19 @@ def test_summary_table_fits_80_columns_without_cutting_numbers():
     full = Console(file=io.StringIO(), width=250)
     full.print(summary_table(summary))
     assert all(head in full.file.getvalue() for head, _ in _TABLE_COLUMNS)
+
+
+@pytest.mark.parametrize(
+    ("args", "names"),
+    [
+        (["run", "s.yaml", "-m", "tercom", "--trials", "many"], ["--trials", "valid integer"]),
+        (["run"], ["Missing argument", "scenario"]),
+        (["nosuch"], ["No such command", "nosuch"]),
+        (["suitability", "builtin:mb_1km", "--window-cells", "x"], ["--window-cells"]),
+    ],
+    ids=["bad-int", "missing-argument", "unknown-command", "bad-window"],
+)
+def test_usage_errors_are_one_line(args, names):
+    outcome = run_cli(f"usage {' '.join(args)}", args)
+    assert_clean_error(outcome, *names)
+    assert len(outcome.lines) == 1
