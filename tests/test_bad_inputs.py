@@ -284,8 +284,17 @@ def test_suitability_unwritable_out():
             "pf",
             ["hypotheses", "100000 beams"],
         ),
+        ({"ins": {"velocity_error_m_s": 1e6}}, "ioap", ["ioap end-point rings", "ins."]),
     ],
-    ids=["resample", "tercom-window", "velocity-error", "heading-error", "beams", "pf-beams"],
+    ids=[
+        "resample",
+        "tercom-window",
+        "velocity-error",
+        "heading-error",
+        "beams",
+        "pf-beams",
+        "ioap-rings",
+    ],
 )
 def test_sizes_that_would_not_fit_are_refused_before_allocation(tmp_path, changes, spec, names):
     scenario = _mission(tmp_path, **changes)
@@ -374,3 +383,38 @@ def test_summary_table_fits_80_columns_without_cutting_numbers():
     full = Console(file=io.StringIO(), width=250)
     full.print(summary_table(summary))
     assert all(head in full.file.getvalue() for head, _ in _TABLE_COLUMNS)
+
+
+@pytest.mark.parametrize(
+    ("args", "names"),
+    [
+        (["run", "s.yaml", "-m", "tercom", "--trials", "many"], ["--trials", "valid integer"]),
+        (["run"], ["Missing argument", "scenario"]),
+        (["nosuch"], ["No such command", "nosuch"]),
+        (["suitability", "builtin:mb_1km", "--window-cells", "x"], ["--window-cells"]),
+    ],
+    ids=["bad-int", "missing-argument", "unknown-command", "bad-window"],
+)
+def test_usage_errors_are_one_line(args, names):
+    outcome = run_cli(f"usage {' '.join(args)}", args)
+    assert_clean_error(outcome, *names)
+    assert len(outcome.lines) == 1
+
+
+def test_pmf_with_a_huge_ins_error_finishes_instead_of_hanging(tmp_path):
+    scenario = _mission(tmp_path, ins={"velocity_error_m_s": 1e6})
+    outcome = _run(tmp_path, scenario, "--json", method="pmf", case="pmf velocity 1e6")
+    assert outcome.exit_code == 0 and not outcome.traceback, outcome.output
+    assert outcome.seconds < 30
+
+
+def test_motion_kernel_wider_than_the_grid_keeps_its_central_taps():
+    from geofix.filters import _grid_ops as ops
+
+    full = ops.motion_kernel(30.0)
+    cut = ops.motion_kernel(30.0, 20)
+    middle = full.size // 2
+    ratio = cut / full[middle - 20 : middle + 21]
+    assert cut.size == 41
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-3)
+    np.testing.assert_array_equal(ops.motion_kernel(3.0, 20), ops.motion_kernel(3.0))

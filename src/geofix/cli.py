@@ -18,10 +18,37 @@ from typing import Annotated
 import typer
 from rich.console import Console
 from rich.table import Table
+from typer.core import TyperGroup
 
 from geofix.errors import GeofixError
 
+
+class _OneLineErrors(TyperGroup):
+    """The command group, with usage errors (a bad option value) printed in one line."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **kw):
+        """Run the command line; a usage error prints ``error: ...`` and exits 2."""
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode=False, **kw)
+        try:
+            code = super().main(args, prog_name, complete_var, standalone_mode=False, **kw)
+        except typer.Exit as exc:
+            sys.exit(exc.exit_code)
+        except typer.Abort:
+            _print_line("interrupted:", "aborted")
+            sys.exit(1)
+        except Exception as exc:
+            if not (hasattr(exc, "format_message") and hasattr(exc, "exit_code")):
+                raise  # not a usage error (click's exception types are typer's own here)
+            ctx = getattr(exc, "ctx", None)
+            hint = f" (see {ctx.command_path} --help)" if ctx is not None else ""
+            _print_line("error:", f"{exc.format_message()}{hint}")
+            sys.exit(2 if ctx is not None or exc.exit_code == 2 else exc.exit_code)
+        sys.exit(code if isinstance(code, int) else 0)
+
+
 app = typer.Typer(
+    cls=_OneLineErrors,
     add_completion=False,
     no_args_is_help=True,
     help="geofix: terrain- and gravity-aided navigation without GPS.",

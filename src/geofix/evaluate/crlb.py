@@ -152,11 +152,27 @@ def recursive_bound(info: np.ndarray, process_var, prior_var: float) -> np.ndarr
     eye = np.eye(2)
     bounds = np.empty_like(info)
     j = eye / max(float(prior_var), MIN_PROCESS_VAR) + info[0]
-    bounds[0] = np.linalg.inv(j)
+    bounds[0] = _inverse_information(j)
     for k in range(1, info.shape[0]):
-        j = np.linalg.inv(bounds[k - 1] + q[k - 1] * eye) + info[k]
-        bounds[k] = np.linalg.inv(j)
+        j = _inverse_information(bounds[k - 1] + q[k - 1] * eye) + info[k]
+        bounds[k] = _inverse_information(j)
     return bounds
+
+
+def _inverse_information(j: np.ndarray) -> np.ndarray:
+    """``inv(j)`` of a symmetric 2x2 information (or covariance) matrix.
+
+    When ``j`` is singular in floating point (a huge prior variance next to a strong
+    gradient along one direction leaves the other direction's information below the
+    rounding of the first), its eigenvalues are floored at ``1e-15`` of the largest: the
+    bound along the direction the data says nothing about is then huge, as it should be.
+    """
+    try:
+        return np.linalg.inv(j)
+    except np.linalg.LinAlgError:
+        values, vectors = np.linalg.eigh(0.5 * (j + j.T))
+        floor = max(float(np.max(np.abs(values))) * 1e-15, np.finfo(float).tiny)
+        return (vectors / np.maximum(values, floor)) @ vectors.T
 
 
 def trial_beam_variance(trial) -> np.ndarray:

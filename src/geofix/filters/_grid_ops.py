@@ -78,7 +78,7 @@ def mass_beyond(log_weight, centre, axes, spacing, point, radius: float) -> floa
     return float(w[far].sum() / w.sum())
 
 
-def motion_kernel(sigma_nodes: float) -> np.ndarray:
+def motion_kernel(sigma_nodes: float, max_half: int | None = None) -> np.ndarray:
     """A symmetric discrete kernel of variance ``sigma_nodes^2`` (node units), summing to one.
 
     Three taps ``[a, 1 - 2a, a]`` with ``a = sigma^2 / 2`` below
@@ -86,11 +86,21 @@ def motion_kernel(sigma_nodes: float) -> np.ndarray:
     node); above it a Gaussian sampled out to 5 sigma, convolved with such a three-tap
     kernel that makes up the variance lost to sampling and truncation, so the variance
     is exact there too.
+
+    ``max_half`` (nodes): on a grid of ``max_half + 1`` nodes no tap farther out can
+    reach a node, so a wider kernel (a motion far larger than the grid, e.g. a huge INS
+    error) is returned as its central ``2 max_half + 1`` taps, each the Gaussian density
+    at the tap (the full kernel's weights up to a common factor, which the normalised
+    log-density does not see) -- instead of allocating and convolving taps that only
+    cost time.
     """
     s = float(sigma_nodes)
     if s <= THREE_TAP_MAX_SIGMA:
         a = 0.5 * s * s
         return np.array([a, 1.0 - 2.0 * a, a])
+    if max_half is not None and 5.0 * s > max_half + 1:
+        u = np.arange(-int(max_half), int(max_half) + 1)
+        return np.exp(-0.5 * (u / s) ** 2) / (s * np.sqrt(2.0 * np.pi))
     half = int(np.ceil(5.0 * s))
     u = np.arange(-half, half + 1)
     k = np.exp(-0.5 * (u / s) ** 2)

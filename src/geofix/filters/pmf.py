@@ -250,7 +250,10 @@ class Pmf(RecursiveFilter):
             return self._predict_errstate(state, motion)
         state = self._follow(state, motion.process_var)
         sd = np.sqrt(motion.process_var)
-        kernels = tuple(ops.motion_kernel(sd / h) for h in state.spacing)
+        kernels = tuple(
+            ops.motion_kernel(sd / h, n - 1)
+            for h, n in zip(state.spacing, state.shape, strict=True)
+        )
         log_weight = ops.convolve_log(state.log_weight, kernels)
         centre = state.centre + np.asarray(motion.displacement, dtype=float)
         return replace(state, log_weight=log_weight, centre=centre)

@@ -512,6 +512,7 @@ def _to_metric(raw: _Raw, cell_m: float | None, meta: dict, source: str, labels:
     """Project (lon/lat) or keep (metric) the raw grid, then resample if asked."""
     _require_data(raw.values, source)
     if raw.geographic:
+        _check_lonlat(raw, source)
         pv = project.project_lonlat_grid(raw.values, raw.x, raw.y, cell_m)
         _require_data(pv.values, source)
         meta["projection"] = pv.proj
@@ -525,6 +526,17 @@ def _to_metric(raw: _Raw, cell_m: float | None, meta: dict, source: str, labels:
         grid = project.resample_m(grid, cell_m)
         _require_data(grid.values, source)
     return grid
+
+
+def _check_lonlat(raw: _Raw, source: str) -> None:
+    """Refuse lon/lat axes outside the globe (latitude beyond +-90, longitude beyond 360)."""
+    if not (np.all(np.abs(raw.y) <= 90) and np.all(np.abs(raw.x) <= 360)):
+        raise MapError(
+            f"{source}: degree coordinates out of range (longitude {raw.x[0]:g}..{raw.x[-1]:g},"
+            f" latitude {raw.y[0]:g}..{raw.y[-1]:g}); latitudes must lie within -90..90"
+        )
+    if raw.x[-1] - raw.x[0] > 360:
+        raise MapError(f"{source}: longitudes span more than 360 degrees")
 
 
 def _finish_saved(raw: _Raw, region, cell_m, kind: str | None, name: str | None) -> Grid:

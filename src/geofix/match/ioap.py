@@ -56,6 +56,7 @@ import numpy as np
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.grid import Grid
 from geofix.measurement import predict_track
+from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import Fix, MatchProblem
 
 _SHAPES = ("translate", "anchor")
@@ -155,6 +156,23 @@ def epmp_ring_count(sigma: float, cell: float, sigma_multiple: float = 3.0) -> i
     """
     rings = max(int(np.ceil(sigma_multiple * sigma / cell - 1e-9)), 1)
     return 3 * int(np.ceil(rings / 3))
+
+
+#: Float arrays of candidates x samples x 2 alive at once (tracks, footprints, reads).
+_TRACK_COPIES = 6
+
+
+def epmp_point_estimate(
+    sigma: float, cell: float, sigma_multiple: float = 3.0, reference: float = 1.5
+) -> float:
+    """Number of EPMP ring points of :func:`epmp_layout`, computed without allocating.
+
+    ``M'`` rings in three thirds at spacings ``2 phi``, ``phi`` and ``phi / 2`` with
+    ``phi = 3 / (reference M')``: about ``7 pi reference M'^2 / 9`` points (a float, so
+    that a huge ``sigma`` gives a huge number rather than an allocation).
+    """
+    rings = 3.0 * np.ceil(max(np.ceil(sigma_multiple * sigma / cell - 1e-9), 1.0) / 3.0)
+    return 7.0 * np.pi * reference * rings**2 / 9.0 + rings
 
 
 def epmp_layout(
@@ -280,6 +298,13 @@ class Ioap:
         sigma0, sigma = ring_sigmas(problem.sigma_position)
         start = self.start_fix(problem, sigma0)
         centre = start + (problem.indicated[-1] - problem.indicated[0])
+        k = epmp_point_estimate(sigma, problem.grid.cell_size, self.sigma_multiple, self.reference)
+        check_allocation(
+            cells_bytes(k, problem.n, 2, copies=_TRACK_COPIES) + cells_bytes(k, copies=16),
+            f"ioap end-point rings of about {k:.3g} candidates x {problem.n} samples "
+            f"(sigma_multiple {self.sigma_multiple:g} x the INS prior sigma {sigma:.3g} m "
+            "from ins.*)",
+        )
         layout = epmp_layout(sigma, problem.grid.cell_size, self.sigma_multiple, self.reference)
         ends = snap_to_nodes(problem.grid, centre + layout.offsets())
         if self.track_shape == "translate":
