@@ -4,9 +4,12 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from geofix._strict import Strict
+
+#: No position error on Earth is larger than half its circumference, metres.
+EARTH_HALF_CIRCUMFERENCE_M = 2.0e7
 
 
 class InsSpec(Strict):
@@ -25,7 +28,7 @@ class InsSpec(Strict):
     """
 
     initial_error_m: tuple[float, float] = (0.0, 0.0)
-    initial_error_std_m: float = Field(default=0.0, ge=0)
+    initial_error_std_m: float = Field(default=0.0, ge=0, le=EARTH_HALF_CIRCUMFERENCE_M)
     velocity_error_m_s: float = Field(default=0.0, ge=0)
     heading_error_deg: float = 0.0
     gyro_bias_deg_h: float = Field(default=0.0, ge=0)
@@ -36,6 +39,13 @@ class InsSpec(Strict):
     prior_sigma_m: float | None = Field(default=None, gt=0)
     mode: Literal["free", "dvl"] = "free"
     latitude_deg: float | None = Field(default=None, ge=-90, le=90)
+
+    @field_validator("initial_error_m")
+    @classmethod
+    def _on_earth(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if max(abs(v[0]), abs(v[1])) > EARTH_HALF_CIRCUMFERENCE_M:
+            raise ValueError(f"must be at most {EARTH_HALF_CIRCUMFERENCE_M:g} m per axis")
+        return v
 
 
 class DvlSpec(Strict):
