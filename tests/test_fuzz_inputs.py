@@ -9,7 +9,7 @@ huge integers, text with markup, lists, nothing); each is validated and, when va
 map prepared, its trial 0 simulated and TERCOM run on it. Map files are small netCDF
 files of generated shapes, types, coordinates and values, or plain garbage bytes.
 
-The examples are derandomised (the same inputs on every run) and counted in
+The examples are derandomised (fixed seeds) and counted in
 ``docs/RESULTS.md`` by ``benchmarks/sections/reliability.py``.
 """
 
