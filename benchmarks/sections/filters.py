@@ -273,9 +273,7 @@ def _verdict(label, stats, crlb, peers, batch, trials) -> str:
     if crlb["track"] and np.isfinite(b["track"]):
         r = b["track"] / crlb["track"]
         met = "met" if r <= TRACK_FACTOR else "NOT met"
-        checks.append(
-            f"its track RMS {fmt(r, 2)}× `crlb_track_m` ({met}: ≤ {TRACK_FACTOR}×)"
-        )
+        checks.append(f"its track RMS {fmt(r, 2)}× `crlb_track_m` ({met}: ≤ {TRACK_FACTOR}×)")
     if "mpf" in stats:
         nees = stats["mpf"]["nees"]
         ok = nees is not None and NEES_RANGE[0] <= nees <= NEES_RANGE[1]
