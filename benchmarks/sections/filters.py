@@ -38,7 +38,7 @@ RUNS = (
         0,
     ),
 )
-FILTERS = ("pmf", "pf", "mpf")
+FILTERS = ("pmf", "pf", "mpf", "pmf:model=errstate")
 RECURSIVE_PEERS = ("sitan-bank",)
 QUICK_TRIALS, QUICK_PEER_TRIALS = 3, 1
 CRLB_FACTOR = 1.2  # best filter's end RMS against the error-state bound
@@ -155,7 +155,9 @@ resampling at ESS < M/2, Gordon's roughening), and the marginalised particle fil
 (Schön, Gustafsson & Nordlund 2005; Nordlund & Gustafsson 2009: the same particles on the
 position error, each with a Kalman filter on the linear INS error states of
 `geofix.nav.errstate`, one covariance shared by all, the DVL folded in where a trial has one,
-a Liu–West kernel move after resampling). All three use the one measurement model of
+a Liu–West kernel move after resampling), and `pmf:model=errstate` (the same grid carried
+through the error state's affine motion given the position, the linear states in one
+Kalman filter; no DVL). All use the one measurement model of
 `geofix.measurement`. They run on
 the bundled real-map scenarios of the source issues (scenario files unchanged, results stored
 apart as `filters_*`; {trials} seeded trials respectively), beside the batch methods of those
