@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 
-from sections._common import FIGURES, OUT, SCENARIOS, campaign, fmt, md_table
+from sections._common import FIGURES, OUT, SCENARIOS, campaign, fmt, md_table, prose
 
 TITLE = "Beyond the sources — Cramér–Rao bound, integrity on flat terrain, suitability"
 ORDER = 90
 
-BOUND_METHODS = ("tercom", "pmf", "pf")
+BOUND_METHODS = ("tercom", "pmf", "pf", "mpf")
 BOUND_TRIALS, QUICK_BOUND_TRIALS = 30, 2
 NAVO_TRIALS, QUICK_NAVO_TRIALS = 16, 2
 
@@ -26,32 +26,7 @@ def build(quick: bool) -> str:
 
 
 def _intro() -> str:
-    return (
-        "The Cramér–Rao lower bound (CRLB) is the smallest RMS position error any unbiased "
-        "method can reach from the map gradients along the true track and the sensor (plus "
-        "map) noise (`geofix.evaluate.crlb`). Two forms are given per scenario. The "
-        "**recursive** bound (`crlb_m` in `geofix run --json`) is the posterior CRLB of "
-        "Tichavský et al. over the whole mission for a position error that is a random "
-        "walk whose per-step variance is the growth of the INS prior variance (the filters' "
-        "own motion model) with the prior sigma at the first sample; it is reported as "
-        "`sqrt(mean over trials of trace(J_n^-1))` (variances averaged, then the root), "
-        "the bound on the end-point RMS error. The **batch** bound `sqrt(trace(J^-1))` is "
-        "that of a rigid translation of the last leg from its samples alone (no prior): "
-        "the model of TERCOM-like matchers.\n\n"
-        "**Read the recursive bound as the limit of the random-walk motion model, not of "
-        "the simulated vehicle.** The simulated INS error is far more correlated than a "
-        "random walk of the same variance (a fixed initial offset, a constant velocity "
-        "error, Schuler-bounded bias terms), so past soundings say more about the present "
-        "position than the random-walk model admits, and a method can end below that "
-        "bound (the PMF does on several scenarios below, with the same motion model "
-        "inside: the data are kinder than its model). A bound for the simulated error process "
-        "itself would take the INS error state (offset, velocity, bias) as the unknowns. "
-        "The batch bound ignores both the prior and the drift within the leg, so it is no "
-        "strict limit either; it shows how much the terrain of one leg can tell.\n\n"
-        "The false-fix rate counts trials ending more than 3 "
-        "cells off that the method neither flagged as ambiguous nor covered by its own "
-        "3-sigma covariance ellipse.\n"
-    )
+    return prose("integrity_intro")
 
 
 # ---------------------------------------------------------------------- bounds
@@ -71,56 +46,74 @@ def _bundled_scenarios(quick: bool) -> list:
     return [load_scenario(str(p)) for p in [demo, *paths]]
 
 
-def _rms(stats: dict) -> float | None:
-    mean, std = stats.mean_error_m, stats.std_error_m
-    return None if mean is None else math.hypot(mean, std)
-
-
 def _bounds_part(trials: int, quick: bool) -> str:
     from geofix.methods import available_methods
 
     methods = [m for m in BOUND_METHODS if m in available_methods()]
-    rows, ratios = [], []
+    spread = 1.0 / math.sqrt(2.0 * trials)  # relative standard error of an RMS estimate
+    rows, checks = [], []
     for scen in _bundled_scenarios(quick):
         summary = campaign(scen, methods, trials=trials, jobs=2).summary
         stats = summary.methods
-        rms = {m: _rms(stats[m]) for m in methods}
-        if "pmf" in rms and rms["pmf"] and summary.crlb_m:
-            ratios.append((scen.name, rms["pmf"] / summary.crlb_m))
+        rms = {m: stats[m].rms_error_m for m in methods}
+        ratio = {m: _ratio(rms[m], summary.crlb_m) for m in methods}
+        filters = [m for m in methods if m in FILTERS and ratio[m] is not None]
+        best = min(filters, key=lambda m: ratio[m]) if filters else None
+        checks.append((scen.name, best, ratio.get(best) if best else None, ratio))
         rows.append(
             [
                 f"`{scen.name}`",
                 scen.sensor.type,
                 fmt(summary.crlb_m, 1),
-                fmt(summary.crlb_batch_m, 1),
+                fmt(summary.crlb_track_m, 1),
+                fmt(summary.crlb_rw_m, 1),
                 *[fmt(rms[m], 1) for m in methods],
+                *[fmt(ratio[m], 2) for m in methods],
+                fmt(stats["mpf"].nees, 2) if "mpf" in stats else "-",
                 " / ".join(fmt(100 * (stats[m].false_fix_rate or 0), 0) for m in methods),
             ]
         )
     header = [
         "scenario",
         "sensor",
-        "CRLB recursive (m)",
-        "CRLB batch, last leg (m)",
-        *[f"RMS end error `{m}` (m)" for m in methods],
+        "CRLB end (m)",
+        "CRLB track (m)",
+        "random-walk bound (m)",
+        *[f"RMS `{m}` (m)" for m in methods],
+        *[f"`{m}` ÷ CRLB" for m in methods],
+        "`mpf` NEES",
         f"false fixes % ({' / '.join(methods)})",
     ]
-    text = (
-        f"### The bound beside the errors\n\n{trials} trials per scenario (the bundled "
-        "scenarios of the source sections and the demo), end-point RMS errors "
-        "`sqrt(mean^2 + std^2)` over the trials that did not fail.\n\n"
-    )
-    text += md_table(header, rows)
-    if ratios:
-        spread = ", ".join(f"`{n}` {r:.2f}" for n, r in ratios)
-        values = np.array([r for _, r in ratios])
-        text += (
-            f"\nPMF RMS error / recursive CRLB: {spread}. Below the bound on "
-            f"{int((values < 1).sum())} of {values.size} scenarios, within 1.5 times it on "
-            f"{int((values <= 1.5).sum())}; where the ratio is far above 1.5 the PMF lost "
-            "the vehicle on some trials (see its false-fix rate).\n"
-        )
-    return text
+    text = prose("integrity_bounds", trials=trials, spread=f"{100 * spread:.0f}")
+    return text + md_table(header, rows) + _bound_verdict(checks, spread)
+
+
+FILTERS = ("pmf", "pf", "mpf")
+
+
+def _ratio(value, bound):
+    return value / bound if value is not None and bound else None
+
+
+def _bound_verdict(checks: list, spread: float) -> str:
+    """The claims of the table, each with its numbers."""
+    below = [
+        f"`{name}` `{m}` {r:.2f}"
+        for name, _, _, ratios in checks
+        for m, r in ratios.items()
+        if r is not None and r < 0.9 * (1 - 2 * spread)
+    ]
+    best = [(name, m, r) for name, m, r, _ in checks if r is not None]
+    within = [f"`{n}` {r:.2f} (`{m}`)" for n, m, r in best if r <= 1.2]
+    beyond = [f"`{n}` {r:.2f} (`{m}`)" for n, m, r in best if r > 1.2]
+    lines = [
+        f"\n**Best filter ÷ error-state CRLB**, per scenario: at most 1.2 on {len(within)} "
+        f"of {len(best)} scenarios ({', '.join(within) or 'none'}); above 1.2 on "
+        f"{', '.join(beyond) or 'none'}.",
+        "**Below 0.9 × the bound by more than two sampling spreads** (a sign that the bound "
+        f"is wrong there): {', '.join(below) or 'none'}.\n",
+    ]
+    return "\n".join(lines)
 
 
 # ---------------------------------------------------------------------- flat survey

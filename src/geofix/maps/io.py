@@ -352,11 +352,14 @@ def _read_geotiff(path: Path, variable: str | None, source: str) -> _Raw:
         da = rioxarray.open_rasterio(path, masked=True)
     except Exception as exc:  # rasterio raises its own error types
         raise MapError(f"cannot read {source} as GeoTIFF: {_one_line(exc)}") from exc
+    if isinstance(da, list):  # several subdatasets: not a single-grid GeoTIFF
+        raise MapError(f"{source}: a GeoTIFF of {len(da)} subdatasets; give one of them")
     with da:
         band = _pick_band(da, variable, source)
         crs = da.rio.crs
         x, y = da["x"].values.astype(float), da["y"].values.astype(float)
-        values = da.isel(band=band).values.astype(float) if "band" in da.dims else da.values
+        data = da.isel(band=band) if "band" in da.dims else da
+        values = np.asarray(data.to_numpy(), dtype=float)
         attrs = dict(da.attrs)
     if crs is not None:
         geographic = bool(crs.is_geographic)
@@ -416,7 +419,7 @@ def _bag_geometry(xml: bytes, source: str) -> tuple[float, float, float, float]:
             key = "".join(named[0].itertext()).strip() or named[0].attrib.get("codeListValue")
             resolution[key] = float("".join(res[0].itertext()).strip())
         coords = next(e for e in root.iter() if _local(e.tag) == "coordinates")
-        sw = coords.text.split()[0].split(",")
+        sw = (coords.text or "").split()[0].split(",")
         return resolution["column"], resolution["row"], float(sw[0]), float(sw[1])
     except (ET.ParseError, KeyError, IndexError, ValueError, StopIteration, AttributeError) as e:
         raise MapError(f"{source}: cannot find grid spacing and corners in BAG metadata") from e
@@ -542,6 +545,7 @@ def _check_lonlat(raw: _Raw, source: str) -> None:
 def _finish_saved(raw: _Raw, region, cell_m, kind: str | None, name: str | None) -> Grid:
     """A grid written by :func:`save_grid`: restore it, cropping/resampling if asked."""
     saved = raw.saved
+    assert saved is not None and raw.spacing is not None  # a grid written by save_grid
     _require_data(raw.values, str(saved["name"]))
     meta = dict(saved["meta"])
     if region is not None:
