@@ -9,12 +9,15 @@ the whole mission at once and returns its estimate at every sample.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import ClassVar, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
 from geofix.errors import ConfigError
 from geofix.maps.grid import Grid
+
+if TYPE_CHECKING:
+    from geofix.nav.errstate import InsErrorModel
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,12 +50,15 @@ class MatchProblem:
     map_error_std : float
         1-sigma of the map's own error, map units (added to the sensor noise by methods
         that weigh measurements).
-    extras : dict
-        Optional aiding data a method may use (for example ``"dvl_velocity"`` ``(n, 2)``
-        m/s in the local frame).
     beam_noise_std : numpy.ndarray or None
         ``(b,)`` 1-sigma of the sensor noise of every beam, map units; None means
         ``noise_std`` for every beam. Methods that weigh beams use :meth:`beam_noise_var`.
+    dvl_velocity : numpy.ndarray or None
+        ``(n, 2)`` DVL velocity over ground in the local frame, m/s, when the vehicle has
+        one (aiding data a method may use).
+    ins_model : InsErrorModel or None
+        The INS error model of the navigator (:mod:`geofix.nav.errstate`), for the
+        error-state filters; None when unknown.
     """
 
     grid: Grid
@@ -65,8 +71,9 @@ class MatchProblem:
     noise_std: float = 0.0
     sensor: str = "singlebeam"
     map_error_std: float = 0.0
-    extras: dict = field(default_factory=dict)
     beam_noise_std: np.ndarray | None = None
+    dvl_velocity: np.ndarray | None = None
+    ins_model: InsErrorModel | None = None
 
     @property
     def n(self) -> int:

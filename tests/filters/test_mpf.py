@@ -63,7 +63,7 @@ def test_mpf_needs_the_ins_model_and_checks_its_settings(small_mission):
     grid = prepare_map(scen)
     trial = simulate_trial(scen, grid, 0)
     problem = trial.problem(grid)
-    stripped = type(problem)(**{**problem.__dict__, "extras": {}})
+    stripped = type(problem)(**{**problem.__dict__, "ins_model": None, "dvl_velocity": None})
     with pytest.raises(MatchError, match="INS error model"):
         parse_method_spec("mpf").match(stripped, np.random.default_rng(0))
     with pytest.raises(ConfigError, match="particles"):

@@ -36,7 +36,7 @@ def _problem(grid, offset, n=40, noise=0.0, lag_s=0.0, seed=0, dvl=True):
     measured = grid.sample(truth[:, 0], truth[:, 1])[:, None]
     measured = measured + rng.normal(0.0, noise, measured.shape) if noise else measured
     measured = apply_first_order_lag(measured, times, lag_s)
-    extras = {"dvl_velocity": np.tile(step / DT, (n, 1))} if dvl else {}
+    dvl_velocity = np.tile(step / DT, (n, 1)) if dvl else None
     problem = MatchProblem(
         grid=grid,
         indicated=truth + np.asarray(offset, float),
@@ -47,7 +47,7 @@ def _problem(grid, offset, n=40, noise=0.0, lag_s=0.0, seed=0, dvl=True):
         times=times,
         noise_std=max(noise, 0.1),
         sensor="gravimeter",
-        extras=extras,
+        dvl_velocity=dvl_velocity,
     )
     return problem, truth
 

@@ -45,7 +45,7 @@ def test_scenario_from_yaml_simulates(tmp_path):
     grid = Grid(-40.0 + 3.0 * np.sin(xx / 90.0) * np.cos(yy / 70.0), 0.0, 0.0, 20.0, 20.0)
     trial = simulate_trial(sc, grid, 3)
     assert trial.measured.shape == (30, 5)
-    assert trial.extras["dvl_velocity"].shape == (30, 2)
+    assert trial.dvl_velocity.shape == (30, 2)
     assert np.all(np.isfinite(trial.measured))
 
 

@@ -77,7 +77,8 @@ def assert_same_trial(a, b):
         "sigma_position",
     ):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
-    assert a.extras.keys() == b.extras.keys()
+    for key in ("true_velocity", "dvl_velocity", "unlagged_measured"):
+        assert (getattr(a, key) is None) == (getattr(b, key) is None), key
 
 
 def test_trial_contents_and_shapes():
@@ -90,8 +91,8 @@ def test_trial_contents_and_shapes():
     assert np.all(np.abs(trial.truth[0] - 5000.0) <= 200.0)
     expected_sigma = position_sigma(sc.ins, trial.times, 5.0 * trial.times)
     np.testing.assert_allclose(trial.sigma_position, expected_sigma)
-    assert set(trial.extras) == {"true_velocity", "unlagged_measured", "lag_s"}
-    unlagged = trial.extras["unlagged_measured"]
+    assert trial.dvl_velocity is None and trial.lag_s > 0
+    unlagged = trial.unlagged_measured
     np.testing.assert_allclose(
         compensate_first_order_lag(trial.measured, trial.times, 40.0), unlagged
     )
@@ -122,10 +123,10 @@ def test_adding_a_dvl_keeps_track_ins_and_measurements():
     aided = simulate_trial(scenario(dvl={"noise_std_m_s": 0.01, "bias_m_s": 0.02}), grid, 4)
     for name in ("truth", "indicated", "measured"):
         np.testing.assert_array_equal(getattr(plain, name), getattr(aided, name))
-    dvl = aided.extras["dvl_velocity"]
+    dvl = aided.dvl_velocity
     assert dvl.shape == (60, 2)
-    assert 0.0 < np.abs(dvl - aided.extras["true_velocity"]).max() < 0.1
-    assert aided.problem(grid, slice(0, 30)).extras["dvl_velocity"].shape == (30, 2)
+    assert 0.0 < np.abs(dvl - aided.true_velocity).max() < 0.1
+    assert aided.problem(grid, slice(0, 30)).dvl_velocity.shape == (30, 2)
 
 
 def test_multibeam_trial_reads_every_beam():
@@ -144,7 +145,7 @@ def test_multibeam_trial_reads_every_beam():
     problem = trial.problem(grid)
     x, y = problem.footprint(trial.truth, trial.true_heading)
     np.testing.assert_array_equal(trial.measured, grid.sample(x, y))
-    assert "unlagged_measured" not in trial.extras
+    assert trial.unlagged_measured is None
 
 
 def test_start_cell_is_converted_with_the_grid():

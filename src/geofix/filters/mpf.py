@@ -45,7 +45,7 @@ Systems 45(4):
   correlation between a particle's position and its linear states.
 
 The prior is the error state's (the simulator's second moments), read from
-``problem.extras["ins_model"]`` (:class:`~geofix.nav.errstate.InsErrorModel`, put there
+``problem.ins_model`` (:class:`~geofix.nav.errstate.InsErrorModel`, put there
 for simulated trials); the error state is built along the *indicated* track. The
 estimate is the weighted mean and covariance of the particle positions.
 """
@@ -200,9 +200,9 @@ class Mpf(RecursiveFilter):
         MatchError
             The problem carries no INS error model, or no particle lies on the map.
         """
-        model = problem.extras.get("ins_model")
+        model = problem.ins_model
         if model is None:
-            raise MatchError("mpf: the problem has no INS error model (extras['ins_model'])")
+            raise MatchError("mpf: the problem has no INS error model (problem.ins_model)")
         es = error_state(model, problem.times, problem.indicated)
         cell = problem.grid.cell_size
         p0 = es.prior_cov
@@ -305,7 +305,7 @@ class Mpf(RecursiveFilter):
         return lattice + step * rng.random(lattice.shape), float(np.sqrt(step.prod()))
 
     def _dvl_innovations(self, problem: MatchProblem, es: ErrorState) -> np.ndarray | None:
-        dvl = problem.extras.get("dvl_velocity")
+        dvl = problem.dvl_velocity
         if not self.use_dvl or dvl is None or es.velocity_map is None:
             return None
         return step_velocities(problem.times, problem.indicated) - np.asarray(dvl, float)

@@ -173,7 +173,7 @@ class Pmf(RecursiveFilter):
         Motion model: ``rw`` (the INS error as a white random walk of per-axis variance
         ``Motion.process_var``) or ``errstate`` (the INS error state of
         :mod:`geofix.nav.errstate`, its prior the simulator's second moments, from
-        ``problem.extras["ins_model"]``; see :mod:`geofix.filters._pmf_errstate`). The
+        ``problem.ins_model``; see :mod:`geofix.filters._pmf_errstate`). The
         error-state model does not use a DVL (``mpf`` does).
 
     References
@@ -282,9 +282,9 @@ class Pmf(RecursiveFilter):
 
     # ------------------------------------------------------------------ error state
     def _initialize_errstate(self, problem: MatchProblem) -> PmfState:
-        model = problem.extras.get("ins_model")
+        model = problem.ins_model
         if model is None:
-            raise MatchError("pmf: model=errstate needs the INS error model (extras['ins_model'])")
+            raise MatchError("pmf: model=errstate needs the INS error model (problem.ins_model)")
         es = error_state(model, problem.times, problem.indicated)
         cell = problem.grid.cell_size
         floor = self.min_spacing_cells * cell * (self.points - 1) / (2 * self.extent_sigmas)

@@ -12,7 +12,7 @@ numpy step over an array ``(pairs, sources, 4)``.
   ``f = |g_k - g_map(a)| + |g_k+1 - g_map(b)|`` (mGal; a NaN measurement is skipped, a
   candidate off the map scores ``inf``), fitness ``fit = 1 / (1 + f)``.
 - Constraint (reconstruction): ``|(b - a) - v_dvl dt| <= tolerance``, ``v_dvl`` the mean DVL
-  velocity of the two samples (``problem.extras["dvl_velocity"]``), or the INS displacement
+  velocity of the two samples (``problem.dvl_velocity``), or the INS displacement
   ``p_k+1 - p_k`` without a DVL. A new source that breaks it is rejected.
 - Employed bees: source ``i`` moves towards or away from a random other source ``m`` of its
   colony along one random axis (x or y), both points of the pair with the same
@@ -225,10 +225,10 @@ def pair_displacements(problem: MatchProblem) -> np.ndarray:
     """Expected displacement between consecutive samples, metres, ``(n - 1, 2)``.
 
     The mean DVL velocity of the two samples times the interval when
-    ``problem.extras["dvl_velocity"]`` (``(n, 2)`` m/s) is there, else the INS
+    ``problem.dvl_velocity`` (``(n, 2)`` m/s) is there, else the INS
     displacement ``indicated[k+1] - indicated[k]``.
     """
-    dvl = problem.extras.get("dvl_velocity")
+    dvl = problem.dvl_velocity
     if dvl is None:
         return np.diff(problem.indicated, axis=0)
     dvl = np.asarray(dvl, dtype=float)

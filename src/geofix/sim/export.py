@@ -12,8 +12,8 @@ other tools can be run on the very same data:
 - the sensor geometry ``offset_across, offset_along (beam)``, the legs ``leg_start
   (leg)`` and per trial ``noise_std, map_error_std, trial_index``; the per-beam noise
   ``beam_noise_std (trial, beam)`` when any trial has one (NaN rows for trials without);
-- every array of ``Trial.extras`` (``dvl_velocity``, ``true_velocity``,
-  ``unlagged_measured``, ...) as ``extra_<key>[_x|_y]`` and scalar extras per trial, each
+- every optional array of a trial (``dvl_velocity``, ``true_velocity``,
+  ``unlagged_measured``) as ``extra_<key>[_x|_y]`` and ``lag_s`` per trial, each
   tagged with attributes ``extra_key`` / ``extra_component`` so the reader restores them;
 - global attributes: the scenario as YAML (``scenario_yaml``), its name, seed, sensor
   type and conventions. Units are on every variable (metres, radians clockwise from
@@ -171,8 +171,8 @@ def _beam_noise_std_vars(trials: list[Trial]) -> dict[str, _Variable]:
 def _extra_vars(trials: list[Trial]) -> dict[str, _Variable]:
     out: dict[str, _Variable] = {}
     first = trials[0]
-    for key, value in first.extras.items():
-        stacked = np.stack([np.asarray(t.extras[key], dtype=float) for t in trials])
+    for key, value in _optional_fields(first).items():
+        stacked = np.stack([np.asarray(getattr(t, key), dtype=float) for t in trials])
         tag = {"extra_key": key}
         if stacked.ndim == 1:
             out[f"extra_{key}"] = ("trial", stacked, {**tag, "extra_component": "scalar"})
@@ -278,7 +278,7 @@ def _trial_from(ds, k: int) -> Trial:
         sensor=str(ds.attrs["sensor"]),
         map_error_std=float(ds["map_error_std"].values[k]),
         index=int(ds["trial_index"].values[k]),
-        extras=_extras_from(ds, k),
+        **_extras_from(ds, k),
         beam_noise_std=_beam_noise_std_from(ds, k),
     )
 
@@ -290,7 +290,24 @@ def _beam_noise_std_from(ds, k: int) -> np.ndarray | None:
     return None if np.isnan(row).all() else row
 
 
+#: Optional trial fields written as ``extra_<key>`` variables (names kept from the format's
+#: first version, whose trials held them in a dictionary).
+OPTIONAL_FIELDS = ("true_velocity", "dvl_velocity", "unlagged_measured", "lag_s")
+
+
+def _optional_fields(trial: Trial) -> dict:
+    """The optional fields a trial has: every array that is set, and ``lag_s`` with them."""
+    out = {}
+    for key in OPTIONAL_FIELDS[:3]:
+        if getattr(trial, key) is not None:
+            out[key] = getattr(trial, key)
+    if trial.unlagged_measured is not None:
+        out["lag_s"] = trial.lag_s
+    return out
+
+
 def _extras_from(ds, k: int) -> dict:
+    """The optional trial fields stored as ``extra_*`` variables (unknown ones are skipped)."""
     extras: dict = {}
     pending: dict = {}
     for var in ds.data_vars.values():
@@ -307,4 +324,4 @@ def _extras_from(ds, k: int) -> dict:
             extras[key] = value
     for key, parts in pending.items():
         extras[key] = np.column_stack([parts["x"], parts["y"]])
-    return extras
+    return {key: value for key, value in extras.items() if key in OPTIONAL_FIELDS}

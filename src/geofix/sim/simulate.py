@@ -180,14 +180,15 @@ def _true_track(scenario: Scenario, grid: Grid, rng: np.random.Generator) -> Tru
     )
 
 
-def _extras(scenario: Scenario, true: TrueTrajectory, unlagged, dvl_rng) -> dict:
-    extras: dict = {"true_velocity": true.velocity}
+def _aiding(scenario: Scenario, true: TrueTrajectory, unlagged, dvl_rng) -> dict:
+    """The trial's optional fields: DVL, true velocity, the gravimeter's unlagged readings."""
+    out: dict = {"true_velocity": true.velocity}
     if scenario.dvl is not None and scenario.ins.mode == "free":
-        extras["dvl_velocity"] = simulate_dvl(true, scenario.dvl, dvl_rng)
+        out["dvl_velocity"] = simulate_dvl(true, scenario.dvl, dvl_rng)
     if scenario.sensor.type == "gravimeter":
-        extras["unlagged_measured"] = unlagged
-        extras["lag_s"] = float(scenario.sensor.lag_s)
-    return extras
+        out["unlagged_measured"] = unlagged
+        out["lag_s"] = float(scenario.sensor.lag_s)
+    return out
 
 
 def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
@@ -212,11 +213,11 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
         :func:`geofix.sensors.echosounder.beam_noise_std`); ``map_error_std`` is left at 0
         as both already hold the map error. ``sigma_position`` is
         :func:`geofix.nav.ins.position_sigma` with the nominal distance ``speed * t``.
-        ``extras`` holds ``"true_velocity"`` ``(n, 2)`` m/s, ``"dvl_velocity"`` ``(n, 2)``
-        m/s with a DVL aiding a free INS (none in ``ins.mode: dvl``, where the DVL is the
-        navigator itself), and for a gravimeter ``"unlagged_measured"`` ``(n, 1)`` and
-        ``"lag_s"``. ``ins_model`` is the navigator's
-        :class:`~geofix.nav.errstate.InsErrorModel` (handed to the problems).
+        ``true_velocity`` is ``(n, 2)`` m/s; ``dvl_velocity`` ``(n, 2)`` m/s with a DVL
+        aiding a free INS (None in ``ins.mode: dvl``, where the DVL is the navigator
+        itself); for a gravimeter ``unlagged_measured`` ``(n, 1)`` and ``lag_s``.
+        ``ins_model`` is the navigator's :class:`~geofix.nav.errstate.InsErrorModel`
+        (handed to the problems).
 
     Raises
     ------
@@ -270,7 +271,7 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
         beam_noise_std=np.hypot(beam_noise_std(offsets, sensor), sensor.map_error_std),
         sensor=sensor.type,
         index=int(index),
-        extras=_extras(scenario, true, unlagged, dvl_rng),
+        **_aiding(scenario, true, unlagged, dvl_rng),
         ins_model=InsErrorModel.from_specs(scenario.ins, scenario.dvl),
     )
 

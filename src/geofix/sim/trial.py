@@ -3,15 +3,13 @@
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from geofix.maps.grid import Grid
 from geofix.nav.errstate import InsErrorModel
 from geofix.problem import MatchProblem, check_beam_noise_std
-
-_TRUTH_PREFIXES = ("true_", "unlagged_")
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,17 +44,23 @@ class Trial:
         1-sigma of the map error, map units.
     index : int
         Trial number within its scenario.
-    extras : dict
-        Aiding data (``"dvl_velocity"`` ``(n, 2)`` m/s, ``"unlagged_measured"`` before the
-        gravimeter lag, ``"lag_s"``) and truth kept for diagnostics (keys starting with
-        ``"true_"`` or ``"unlagged_"``, never handed to a method).
     beam_noise_std : numpy.ndarray or None
         ``(b,)`` noise 1-sigma of every beam, map units, on the same footing as
         ``noise_std`` (None: ``noise_std`` for every beam). Handed on to every problem.
     ins_model : InsErrorModel or None
         The navigator's datasheet error model (:mod:`geofix.nav.errstate`), for the
-        Cramér–Rao bound and the error-state filters; handed to every problem as
-        ``extras["ins_model"]`` (None for a replayed mission without one).
+        Cramér–Rao bound and the error-state filters; handed to every problem (None for a
+        replayed mission without one).
+    dvl_velocity : numpy.ndarray or None
+        ``(n, 2)`` DVL velocity over ground, m/s, when the vehicle has a DVL (aiding data,
+        handed to every problem).
+    true_velocity : numpy.ndarray or None
+        ``(n, 2)`` true velocity, m/s (truth: never handed to a method).
+    unlagged_measured : numpy.ndarray or None
+        ``(n, b)`` the readings before a gravimeter's lag, map units (truth: never handed
+        to a method); None without a lag.
+    lag_s : float
+        The gravimeter's lag time constant, seconds (0 without one).
     """
 
     truth: np.ndarray
@@ -72,9 +76,12 @@ class Trial:
     sensor: str = "singlebeam"
     map_error_std: float = 0.0
     index: int = 0
-    extras: dict = field(default_factory=dict)
     beam_noise_std: np.ndarray | None = None
     ins_model: InsErrorModel | None = None
+    dvl_velocity: np.ndarray | None = None
+    true_velocity: np.ndarray | None = None
+    unlagged_measured: np.ndarray | None = None
+    lag_s: float = 0.0
 
     def __post_init__(self) -> None:
         if self.beam_noise_std is not None:
@@ -97,13 +104,7 @@ class Trial:
         earlier fix, say); by default the free INS track is used.
         """
         ind = self.indicated[part] if indicated is None else np.asarray(indicated, dtype=float)
-        extras = {
-            k: (v[part] if isinstance(v, np.ndarray) and v.shape[:1] == (self.n,) else v)
-            for k, v in self.extras.items()
-            if not k.startswith(_TRUTH_PREFIXES)
-        }
-        if self.ins_model is not None:
-            extras["ins_model"] = self.ins_model
+        dvl = None if self.dvl_velocity is None else np.asarray(self.dvl_velocity)[part]
         return MatchProblem(
             grid=grid,
             indicated=ind,
@@ -115,6 +116,7 @@ class Trial:
             noise_std=self.noise_std,
             sensor=self.sensor,
             map_error_std=self.map_error_std,
-            extras=extras,
             beam_noise_std=self.beam_noise_std,
+            dvl_velocity=dvl,
+            ins_model=self.ins_model,
         )
