@@ -174,11 +174,15 @@ def summarise(mission: Mission, inputs: ReplayInput, estimates: dict) -> dict:
     ``{"pings", "methods": {NAME: {end_error_m, mean_error_m, max_error_m,
     converged_at_s, reinits}}}`` (errors None without a truth).
     """
-    out = {"pings": int(mission.n), "methods": {}}
+    methods: dict[str, dict[str, float | int | None]] = {}
     t0 = float(mission.times[0])
     for spec, ests in estimates.items():
         track = np.array([e.position for e in ests])
-        row = {"end_error_m": None, "mean_error_m": None, "max_error_m": None}
+        row: dict[str, float | int | None] = {
+            "end_error_m": None,
+            "mean_error_m": None,
+            "max_error_m": None,
+        }
         if inputs.truth is not None:
             err = np.hypot(*(track - inputs.truth).T)
             row = {
@@ -189,8 +193,8 @@ def summarise(mission: Mission, inputs: ReplayInput, estimates: dict) -> dict:
         converged = [e.t - t0 for e in ests if e.status == "converged"]
         row["converged_at_s"] = float(converged[0]) if converged else None
         row["reinits"] = int(ests[-1].reinits) if ests else 0
-        out["methods"][spec] = row
-    return out
+        methods[spec] = row
+    return {"pings": int(mission.n), "methods": methods}
 
 
 # ---------------------------------------------------------------------- outputs

@@ -402,9 +402,15 @@ def _pct(value: float | None) -> str:
 
 
 def _table(
-    caption: str, head: list[str], rows: list[list[str]], best: dict[int, int] | None = None
+    caption: str,
+    head: list[str],
+    rows: list[list[str]],
+    best: dict[int, int | None] | None = None,
 ) -> str:
-    """An HTML table; ``rows`` are escaped cells, the first one the method specification."""
+    """An HTML table; ``rows`` are escaped cells, the first one the method specification.
+
+    ``best`` maps a column to the row of its best value (None: no best in that column).
+    """
     best = best or {}
     body = []
     for r, row in enumerate(rows):

@@ -26,6 +26,7 @@ import contextlib
 import json
 import math
 import threading
+from collections.abc import Callable
 
 import numpy as np
 
@@ -138,7 +139,7 @@ class Session:
 
         self.navigator = Navigator(grid, method, settings, seed=seed, map_error=map_error)
         self.grid = grid
-        self._proj = None
+        self._proj: Callable[[float, float], tuple[float, float]] | None = None  # lon, lat -> x, y
 
     def handle(self, line: bytes) -> dict:
         """The reply to one request line (never raises)."""
@@ -226,7 +227,7 @@ OVERSIZED = {"ok": False, "error": f"request line longer than {MAX_LINE_BYTES} b
 class NavigatorServer:
     """The asyncio TCP server: :meth:`start`, then :meth:`stop` (or ``serve_forever``)."""
 
-    def __init__(self, grid, method, settings=None, seed=0, map_error=None):
+    def __init__(self, grid, method, settings=None, seed=0, map_error=None) -> None:
         self.grid, self.method, self.settings = grid, method, settings
         self.seed, self.map_error = seed, map_error
         Session(grid, method, settings, seed, map_error)  # refuse a bad method or setting now

@@ -86,7 +86,7 @@ class SharedGrid:
         values[...] = grid.values
         del values  # no view may outlive the block
         fields = _grid_fields(grid)
-        self.handle = SharedGridHandle(self._block.name, tuple(grid.shape), dtype.str, fields)
+        self.handle = SharedGridHandle(self._block.name, grid.shape, dtype.str, fields)
 
     def __enter__(self) -> SharedGrid:
         return self

@@ -425,8 +425,15 @@ def _open_bounds(store_path: Path) -> sqlite3.Connection:
 
 
 def _record_info(db: sqlite3.Connection, shash: str, info: TrialInfo) -> None:
-    row = (shash, info.index, info.crlb_var_m2, info.crlb_batch_var_m2, *info.truth_end)
-    row += (info.crlb_track_var_m2, info.crlb_rw_var_m2)
+    row = (
+        shash,
+        info.index,
+        info.crlb_var_m2,
+        info.crlb_batch_var_m2,
+        *info.truth_end,
+        info.crlb_track_var_m2,
+        info.crlb_rw_var_m2,
+    )
     names = "scenario_hash, trial, crlb_var_m2, crlb_batch_var_m2, truth_end_x, truth_end_y, "
     names += ", ".join(_BOUNDS_COLUMNS)
     with db:
@@ -532,7 +539,10 @@ def _init_worker(handle: _shared_map.SharedGridHandle, parent_pid: int | None = 
 
 
 def _pool_task(simulate_trial, scenario, task) -> _Done:
-    return run_task(simulate_trial, scenario, _WORKER_GRID, task)
+    grid = _WORKER_GRID
+    if grid is None:  # pragma: no cover - _init_worker maps it in every worker
+        raise RuntimeError("campaign worker has no map: its initializer did not run")
+    return run_task(simulate_trial, scenario, grid, task)
 
 
 def _run_pool(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:

@@ -308,7 +308,9 @@ def _json_list(values) -> list | None:
     if values is None:
         return None
     arr = np.asarray(values, dtype=float)
-    return np.where(np.isnan(arr), None, arr).tolist()
+    out = arr.astype(object)
+    out[np.isnan(arr)] = None
+    return out.tolist()
 
 
 def _float_list(values) -> list:

@@ -127,7 +127,17 @@ def convolve_log(log_weight: np.ndarray, kernels: tuple[np.ndarray, np.ndarray])
     return normalise(np.maximum(logp, floor) + top)
 
 
-def resample_grid(log_weight, old: tuple, new: tuple, fallback: tuple, shape=None) -> np.ndarray:
+GridFrame = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""``(centre (2,), axes (2, 2), spacing (2,))`` of a point-mass grid, metres."""
+
+
+def resample_grid(
+    log_weight: np.ndarray,
+    old: GridFrame,
+    new: GridFrame,
+    fallback: tuple[np.ndarray, np.ndarray],
+    shape: int | tuple[int, int] | None = None,
+) -> np.ndarray:
     """Move a log-density from grid ``old`` onto grid ``new`` by linear interpolation.
 
     Parameters

@@ -322,8 +322,8 @@ class OnlineFilter:
         self.rng = rng
         self.map_error = map_error
         self.state = None
-        self._nis = deque(maxlen=max(self.settings.nis_window, 1))
-        self._pose: tuple | None = None  # (t, position (2,), heading)
+        self._nis: deque[float] = deque(maxlen=max(self.settings.nis_window, 1))
+        self._pose: tuple[float, np.ndarray, float] | None = None  # (t, position (2,), heading)
         self._t_last: float | None = None
         self._t_accepted = 0.0
         self._prior_sigma = 0.0
@@ -349,8 +349,8 @@ class OnlineFilter:
 
     def update(self, obs: Observation, t: float | None = None) -> Estimate:
         """Fold in one ping (gated by its NIS), update the status, re-initialise if lost."""
-        self._require_started()
-        t = self._pose[0] if t is None else float(t)
+        pose = self._require_started()
+        t = pose[0] if t is None else float(t)
         self._pings += 1
         s = self.settings
         nis = float("nan")
@@ -358,8 +358,8 @@ class OnlineFilter:
         if accepted and (s.gate_nis is not None or s.nis_window > 0):
             mean, cov = self.filter.estimate(self.state)
             nis = innovation_nis(self.grid, mean, cov, obs)
-            gated = s.gate_nis is not None and self._accepted_count > 0
-            if gated and np.isfinite(nis) and nis > s.gate_nis:
+            gated = self._accepted_count > 0
+            if s.gate_nis is not None and gated and np.isfinite(nis) and nis > s.gate_nis:
                 accepted = False
                 self._rejected += 1
             if np.isfinite(nis) and s.nis_window > 0:
@@ -370,7 +370,7 @@ class OnlineFilter:
             self._t_accepted = t
         estimate = self._describe(t, nis, accepted)
         if estimate.status == "converged":
-            self._good_offset = estimate.position - self._pose[1]
+            self._good_offset = estimate.position - pose[1]
         reason = self._lost_reason(estimate, t)
         if reason is not None:
             estimate = self._lose(estimate, t)
@@ -422,10 +422,9 @@ class OnlineFilter:
             Before :meth:`init`, out of time order, non-finite, or faster than
             ``max_speed_m_s``.
         """
-        self._require_started()
+        t_prev, pos_prev, _ = self._require_started()
         t, heading = _finite(t, "t"), _finite(heading, "heading")
         position = _point(position, "position")
-        t_prev, pos_prev, _ = self._pose
         dt = t - t_prev
         if dt < 0 or (self._t_last is not None and t < self._t_last):
             raise InputError(f"nav at t = {t:g} s is before the previous input ({self._t_last:g})")
@@ -468,11 +467,10 @@ class OnlineFilter:
         InputError
             Before :meth:`init`, out of order, far from the last pose, or malformed beams.
         """
-        self._require_started()
+        t_pose, position, heading = self._require_started()
         t = _finite(t, "t")
         if self._t_last is not None and t < self._t_last:
             raise InputError(f"ping at t = {t:g} s is before the previous input ({self._t_last:g})")
-        t_pose, position, heading = self._pose
         gap = self.settings.max_pose_gap_s
         if gap is not None and abs(t - t_pose) > gap:
             raise InputError(
@@ -494,9 +492,10 @@ class OnlineFilter:
 
     def estimate(self) -> Estimate:
         """The current estimate (the last one returned, or one of the current state)."""
-        self._require_started()
+        t_pose = self._require_started()[0]
         if self._last is None:
-            self._last = self._describe(self._t_last, float("nan"), False)
+            t = self._t_last if self._t_last is not None else t_pose  # both set by init/start
+            self._last = self._describe(t, float("nan"), False)
         return self._last
 
     # ------------------------------------------------------------------ rules
@@ -550,7 +549,7 @@ class OnlineFilter:
         lost = Estimate(**{**_fields(estimate), "status": "lost"})
         if not self.settings.reinit:
             return lost
-        _, position, heading = self._pose
+        _, position, heading = self._require_started()
         centre = position + self._good_offset
         try:
             self.state = self.filter.initialize(
@@ -565,9 +564,11 @@ class OnlineFilter:
         return Estimate(**{**_fields(lost), "reinits": self._reinits})
 
     # ------------------------------------------------------------------ checks
-    def _require_started(self) -> None:
-        if self.state is None:
+    def _require_started(self) -> tuple[float, np.ndarray, float]:
+        """The last pose ``(t, position (2,), heading)``; InputError before any init."""
+        if self.state is None or self._pose is None:
             raise InputError("no init yet: send init (t, x, y, sigma_m) first")
+        return self._pose
 
     def _check_start_box(self, position: np.ndarray, sigma_m: float) -> None:
         share_needed = self.settings.min_start_share

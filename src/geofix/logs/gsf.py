@@ -65,8 +65,9 @@ def read_gsf(path: str | Path, frame: str | None = None, max_pings: int | None =
 
 def _read_pings(path: Path, max_pings: int | None) -> list[dict]:
     try:
-        from gsfpy import open_gsf
-        from gsfpy.enums import RecordType
+        # gsfpy ships no type information
+        from gsfpy import open_gsf  # type: ignore[import-untyped]
+        from gsfpy.enums import RecordType  # type: ignore[import-untyped]
     except ImportError as exc:  # pragma: no cover - gsfpy is a dependency
         raise ConfigError(f"reading GSF needs the gsfpy package: {exc}") from None
     pings: list[dict] = []

@@ -142,21 +142,25 @@ class Mission:
 
     def subset(self, part: slice) -> Mission:
         """The pings ``part`` of the mission (times keep their origin)."""
-        changes = {
-            name: (None if getattr(self, name) is None else np.asarray(getattr(self, name))[part])
-            for name in (
-                "times",
-                "nav",
-                "heading",
-                "beams",
-                "truth",
-                "roll",
-                "pitch",
-                "velocity",
-                "sigma_position",
-            )
-        }
-        return replace(self, **changes)
+
+        def cut(values: np.ndarray) -> np.ndarray:
+            return np.asarray(values)[part]
+
+        def cut_optional(values: np.ndarray | None) -> np.ndarray | None:
+            return None if values is None else cut(values)
+
+        return replace(
+            self,
+            times=cut(self.times),
+            nav=cut(self.nav),
+            heading=cut(self.heading),
+            beams=cut(self.beams),
+            truth=cut_optional(self.truth),
+            roll=cut_optional(self.roll),
+            pitch=cut_optional(self.pitch),
+            velocity=cut_optional(self.velocity),
+            sigma_position=cut_optional(self.sigma_position),
+        )
 
 
 def _check(who: str, name: str, value, shape: tuple, finite: bool = True) -> None:

@@ -50,8 +50,11 @@ class GriddedMap:
     std: np.ndarray
     count: np.ndarray
 
-    def error_grid(self) -> Grid:
-        """The ``std`` layer as a :class:`Grid` on the map's geometry (for the filters)."""
+    def error_grid(self) -> Grid | None:
+        """The ``std`` layer as a :class:`Grid` on the map's geometry (for the filters).
+
+        None when no cell holds two soundings (``std`` all NaN).
+        """
         return error_layer_grid(self.grid, self.std)
 
 
@@ -92,7 +95,7 @@ def grid_soundings(
         A non-positive cell size, fewer than 3 valid soundings, or a grid too large to
         allocate (the message gives the estimate).
     """
-    import verde as vd
+    import verde as vd  # type: ignore[import-untyped]  # verde ships no type information
 
     pts = np.column_stack([np.ravel(x), np.ravel(y), np.ravel(value)]).astype(float)
     pts = pts[np.isfinite(pts).all(axis=1)]
@@ -150,7 +153,7 @@ def _interpolate(centroids, block_mean, centres, x0, y0, nx, ny, cell, max_gap_c
     the last sounding. Centres farther than ``max_gap_cells`` from every cell with
     soundings stay NaN.
     """
-    import verde as vd
+    import verde as vd  # type: ignore[import-untyped]  # verde ships no type information
 
     gx, gy = np.meshgrid(x0 + cell * np.arange(nx), y0 + cell * np.arange(ny))
     near = vd.distance_mask(centres, maxdist=max_gap_cells * cell, coordinates=(gx, gy))

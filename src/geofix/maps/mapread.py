@@ -26,12 +26,11 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-
-_JIT = {"cache": True, "nogil": True}
+from numpy.typing import ArrayLike
 
 
 # ----------------------------------------------------------------------------- scalar kernels
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True)
 def stencil(c, r, nx, ny):  # pragma: no cover - compiled
     """``(inside, c0, r0, fc, fr)`` of the bilinear stencil at fractional cell ``(c, r)``."""
     if not (c >= 0.0 and r >= 0.0 and c <= nx - 1 and r <= ny - 1):
@@ -41,7 +40,7 @@ def stencil(c, r, nx, ny):  # pragma: no cover - compiled
     return True, c0, r0, c - c0, r - r0
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True)
 def combine(values, c0, r0, fc, fr):  # pragma: no cover - compiled
     """Bilinear combination of the stencil at ``values[r0:r0+2, c0:c0+2]``."""
     return (values[r0, c0] * (1 - fc) + values[r0, c0 + 1] * fc) * (1 - fr) + (
@@ -49,7 +48,7 @@ def combine(values, c0, r0, fc, fr):  # pragma: no cover - compiled
     ) * fr
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True)
 def bilinear_at(values, c, r):  # pragma: no cover - compiled
     """Bilinear value at fractional cell ``(c, r)``; NaN off the grid or on no-data."""
     ny, nx = values.shape
@@ -59,7 +58,7 @@ def bilinear_at(values, c, r):  # pragma: no cover - compiled
     return combine(values, c0, r0, fc, fr)
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True)
 def nearest_at(values, c, r):  # pragma: no cover - compiled
     """Value of the node nearest to ``(c, r)`` (half-to-even); NaN off the grid."""
     ny, nx = values.shape
@@ -71,19 +70,19 @@ def nearest_at(values, c, r):  # pragma: no cover - compiled
 
 
 # ----------------------------------------------------------------------------- array kernels
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True)
 def _bilinear_xy(values, x0, y0, dx, dy, x, y, out):  # pragma: no cover - compiled
     for i in range(x.shape[0]):
         out[i] = bilinear_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True)
 def _nearest_xy(values, x0, y0, dx, dy, x, y, out):  # pragma: no cover - compiled
     for i in range(x.shape[0]):
         out[i] = nearest_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True)
 def _gradient_xy(values, x0, y0, dx, dy, x, y, out, gx, gy):  # pragma: no cover - compiled
     ny, nx = values.shape
     for i in range(x.shape[0]):
@@ -100,13 +99,13 @@ def _gradient_xy(values, x0, y0, dx, dy, x, y, out, gx, gy):  # pragma: no cover
         gy[i] = ((v10 - v00) * (1 - fc) + (v11 - v01) * fc) / dy
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True)
 def _bilinear_cells(values, col, row, out):  # pragma: no cover - compiled
     for i in range(col.shape[0]):
         out[i] = bilinear_at(values, col[i], row[i])
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True)
 def _bilinear_beams(values, col, row, bcol, brow, out):  # pragma: no cover - compiled
     for i in range(col.shape[0]):
         for b in range(bcol.shape[0]):
@@ -114,18 +113,27 @@ def _bilinear_beams(values, col, row, bcol, brow, out):  # pragma: no cover - co
 
 
 # ----------------------------------------------------------------------------- numpy façade
-def _flat(a) -> np.ndarray:
+def _flat(a: ArrayLike) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(-1))
 
 
-def _map_values(values: np.ndarray) -> np.ndarray:
+def _map_values(values: ArrayLike) -> np.ndarray:
     values = np.asarray(values)
     if values.dtype not in (np.float32, np.float64):
         values = values.astype(np.float64)
     return np.ascontiguousarray(values)
 
 
-def read_xy(values, x0, y0, dx, dy, x, y, method: str = "bilinear") -> np.ndarray:
+def read_xy(
+    values: ArrayLike,
+    x0: float,
+    y0: float,
+    dx: float,
+    dy: float,
+    x: ArrayLike,
+    y: ArrayLike,
+    method: str = "bilinear",
+) -> np.ndarray:
     """Field values at metric positions (see the module docstring for the conventions).
 
     Parameters
@@ -153,7 +161,15 @@ def read_xy(values, x0, y0, dx, dy, x, y, method: str = "bilinear") -> np.ndarra
     return out.reshape(x.shape)
 
 
-def gradient_xy(values, x0, y0, dx, dy, x, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def gradient_xy(
+    values: ArrayLike,
+    x0: float,
+    y0: float,
+    dx: float,
+    dy: float,
+    x: ArrayLike,
+    y: ArrayLike,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bilinear value and its gradient at metric positions.
 
     Parameters are those of :func:`read_xy`.
@@ -182,7 +198,7 @@ def gradient_xy(values, x0, y0, dx, dy, x, y) -> tuple[np.ndarray, np.ndarray, n
     return out.reshape(x.shape), gx.reshape(x.shape), gy.reshape(x.shape)
 
 
-def bilinear_cells(values, col, row) -> np.ndarray:
+def bilinear_cells(values: ArrayLike, col: ArrayLike, row: ArrayLike) -> np.ndarray:
     """Bilinear values at fractional cell indices ``(col, row)`` (broadcastable shapes)."""
     col, row = np.broadcast_arrays(np.asarray(col, dtype=float), np.asarray(row, dtype=float))
     out = np.empty(col.size)
@@ -190,7 +206,13 @@ def bilinear_cells(values, col, row) -> np.ndarray:
     return out.reshape(col.shape)
 
 
-def bilinear_beams(values, col, row, beam_col, beam_row) -> np.ndarray:
+def bilinear_beams(
+    values: ArrayLike,
+    col: ArrayLike,
+    row: ArrayLike,
+    beam_col: ArrayLike,
+    beam_row: ArrayLike,
+) -> np.ndarray:
     """Bilinear values at every hypothesis ``(col, row)`` plus every beam offset.
 
     Parameters

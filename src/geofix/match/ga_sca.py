@@ -73,6 +73,13 @@ from geofix.problem import Fix, MatchProblem
 
 _VARIANTS = {"A": (True, True), "B": (True, False), "C": (False, True), "D": (False, False)}
 
+_FitnessHead = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+"""``ga_costs`` arguments before ``params``: values, geometry, indicated, heading, pivot,
+offsets."""
+_FitnessTail = tuple[np.ndarray, np.ndarray, np.ndarray, bool, float, int]
+"""``ga_costs`` arguments after ``params``: measured, decay, weights, new_fitness,
+min_valid_fraction, n_valid."""
+
 
 @dataclass(frozen=True)
 class _Context:
@@ -360,7 +367,7 @@ class GaSca:
         head, tail = self._fitness_args(ctx)
         return ga_costs(*head, np.ascontiguousarray(params, dtype=float), *tail)
 
-    def _fitness_args(self, ctx: _Context) -> tuple:
+    def _fitness_args(self, ctx: _Context) -> tuple[_FitnessHead, _FitnessTail]:
         """Arguments of :func:`ga_costs` before and after ``params``."""
         head = (ctx.values, ctx.geometry, ctx.indicated, ctx.heading, ctx.pivot, ctx.offsets)
         tail = (
