@@ -19,6 +19,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks examples docs/conf.py
 	$(BIN)/ruff format --check src tests benchmarks examples docs/conf.py
+	$(BIN)/mypy
 	$(BIN)/pytest -q
 
 lint: $(STAMP)

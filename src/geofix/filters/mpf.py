@@ -311,6 +311,7 @@ class Mpf(RecursiveFilter):
         return step_velocities(problem.times, problem.indicated) - np.asarray(dvl, float)
 
     def _dvl_update(self, state: MpfState, y: np.ndarray, log_weight: np.ndarray):
+        assert state.model.velocity_map is not None  # only called with DVL innovations
         c = state.model.velocity_map[:, _L]
         r = state.model.velocity_noise_var * np.eye(2)
         s = c @ state.cov @ c.T + r

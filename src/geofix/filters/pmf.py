@@ -69,7 +69,7 @@ from geofix.filters._pmf_errstate import conditional_motion, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
 from geofix.measurement import log_likelihood, predict_measurements
-from geofix.nav.errstate import error_state
+from geofix.nav.errstate import ErrorState, error_state
 from geofix.problem import MatchProblem
 
 
@@ -110,13 +110,13 @@ class PmfState:
     cell: float
     evaluations: int = 0
     regrids: int = 0
-    kf: tuple | None = None
-    errstate: object = None
+    kf: tuple[np.ndarray, np.ndarray] | None = None
+    errstate: ErrorState | None = None
     indicated: np.ndarray | None = None
     step: int = 0
 
     @property
-    def frame(self) -> tuple:
+    def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(centre, axes, spacing)`` of the grid."""
         return self.centre, self.axes, self.spacing
 
@@ -250,10 +250,11 @@ class Pmf(RecursiveFilter):
             return self._predict_errstate(state, motion)
         state = self._follow(state, motion.process_var)
         sd = np.sqrt(motion.process_var)
-        kernels = tuple(
+        k0, k1 = (
             ops.motion_kernel(sd / h, n - 1)
             for h, n in zip(state.spacing, state.shape, strict=True)
         )
+        kernels = (k0, k1)
         log_weight = ops.convolve_log(state.log_weight, kernels)
         centre = state.centre + np.asarray(motion.displacement, dtype=float)
         return replace(state, log_weight=log_weight, centre=centre)
@@ -311,8 +312,9 @@ class Pmf(RecursiveFilter):
 
     def _predict_errstate(self, state: PmfState, motion: Motion) -> PmfState:
         es, k = state.errstate, state.step
+        assert es is not None and state.kf is not None and state.indicated is not None
         mean, cov = self.estimate(state)
-        mu, sigma = replace_marginal(*state.kf, state.indicated - mean, cov)
+        mu, sigma = replace_marginal(state.kf[0], state.kf[1], state.indicated - mean, cov)
         f, q = es.transitions[k], es.process_cov[k]
         g, h, kernel = conditional_motion(mu, sigma, f, q)
         indicated = state.indicated + np.asarray(motion.displacement, dtype=float)
@@ -326,9 +328,10 @@ class Pmf(RecursiveFilter):
         fallback = (mean, g_inv @ moved_cov @ g_inv.T)
         log_weight = ops.resample_grid(state.log_weight, state.frame, pulled, fallback, shape)
         along = np.einsum("ij,ik,kj->j", axes, kernel, axes)  # K along the new grid axes
-        kernels = tuple(
+        k0, k1 = (
             ops.motion_kernel(np.sqrt(max(v, 0.0)) / s) for v, s in zip(along, spacing, strict=True)
         )
+        kernels = (k0, k1)
         mu_next = f @ mu
         sigma_next = f @ sigma @ f.T + q
         return replace(

@@ -288,6 +288,8 @@ def _check_problem(problem: MatchProblem, who: str) -> None:
 class _EkfSettings:
     """Settings shared by :class:`Sitan` and :class:`SitanBank` (see their docstrings)."""
 
+    name: ClassVar[str]
+
     patch_sigmas: float = 2.0
     fit_corr_scale: float = 0.0
     bias_sigma: float = 1.0

@@ -81,7 +81,7 @@ MICRO_G = GRAVITY_M_S2 * 1e-6
 DEG_PER_H = np.pi / 180.0 / 3600.0
 DEG_PER_RT_H = np.pi / 180.0 / 60.0
 
-FREE_STATES = ("dp_x", "dp_y", "dv_x", "dv_y", "phi_x", "phi_y", "ba_x", "ba_y")
+FREE_STATES: tuple[str, ...] = ("dp_x", "dp_y", "dv_x", "dv_y", "phi_x", "phi_y", "ba_x", "ba_y")
 FREE_STATES += ("eps_x", "eps_y", "psi", "eps_z")
 DVL_STATES = ("dp_x", "dp_y", "psi", "eps_z", "s", "b_x", "b_y")
 AIDING_STATES = ("bd_x", "bd_y")
@@ -365,7 +365,18 @@ def _dvl_steps(model: InsErrorModel, dts, u) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- prior
 #: Names of the independent per-trial draws ``z`` (free mode; the DVL mode uses the
 #: first two, then heading, azimuth drift, scale, bias).
-FREE_DRAWS = ("p_x", "p_y", "v_x", "v_y", "b_x", "b_y", "e_x", "e_y", "e_z", "psi0")
+FREE_DRAWS: tuple[str, ...] = (
+    "p_x",
+    "p_y",
+    "v_x",
+    "v_y",
+    "b_x",
+    "b_y",
+    "e_x",
+    "e_y",
+    "e_z",
+    "psi0",
+)
 FREE_DRAWS += ("bd_x", "bd_y")
 DVL_DRAWS = ("p_x", "p_y", "psi0", "e_z", "s", "b_x", "b_y")
 
@@ -398,9 +409,9 @@ def _prior(model: InsErrorModel, v0) -> tuple[np.ndarray, np.ndarray]:
     if model.dvl_aiding:
         factor[12, 10] = factor[13, 11] = 1.0
     vel, acc, bd = model.velocity_error**2 / 2.0, model.accel_bias**2 / 2.0, model.dvl_bias**2 / 2
-    moments = [*pos, vel, vel, acc, acc, *[model.gyro_bias**2] * 3, model.heading_error**2]
-    moments += [bd, bd] if model.dvl_aiding else []
-    return factor, np.asarray(moments, dtype=float)
+    terms = [*pos, vel, vel, acc, acc, *[model.gyro_bias**2] * 3, model.heading_error**2]
+    terms += [bd, bd] if model.dvl_aiding else []
+    return factor, np.asarray(terms, dtype=float)
 
 
 def noise_factor(q: np.ndarray) -> np.ndarray:

@@ -81,6 +81,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.linalg import expm
 
+from geofix.errors import ConfigError
 from geofix.nav.errstate import (
     EARTH_RATE_RAD_S,
     InsErrorModel,
@@ -450,6 +451,8 @@ def position_sigma(spec: InsSpec, times, distance_m=None, dvl: DvlSpec | None = 
     """
     times = np.atleast_1d(np.asarray(times, dtype=float))
     if getattr(spec, "mode", "free") == "dvl":
+        if dvl is None:
+            raise ConfigError("ins.mode: dvl needs a dvl block (noise_std_m_s, bias_m_s, ...)")
         distance = np.zeros_like(times) if distance_m is None else distance_m
         distance = np.broadcast_to(np.asarray(distance, dtype=float), times.shape)
         sigma0 = prior_initial_sigma(spec)
