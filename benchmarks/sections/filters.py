@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sections._common import OUT, campaign, fmt, md_table, scenario
+from sections._common import OUT, campaign, fmt, md_table, prose, scenario
 
 TITLE = (
     "Beyond the sources — point-mass, particle and marginalised particle filters, "
@@ -19,22 +19,22 @@ RUNS = (
         "azores-demo",
         "Azores demo, single-beam, 1 km cells",
         ("tercom", "iccp", "sitan-bank"),
-        50,
+        20,
         10,
     ),
-    ("source004_main", "source 004, gravity, 100 m cells", ("tercom", "iccp", "ioap"), 50, 10),
+    ("source004_main", "source 004, gravity, 100 m cells", ("tercom", "iccp", "ioap"), 20, 10),
     (
         "source001_rugged",
         "source 001 run 2, multibeam, 10 m cells",
         ("tercom", "tercom-icp"),
-        30,
+        12,
         8,
     ),
     (
         "source002_bank",
         "source 002, multibeam, 1 km cells, 30 km error",
         ("tercom", "sitan-bank"),
-        12,
+        6,
         0,
     ),
 )
@@ -145,37 +145,7 @@ def _rms(errors: np.ndarray) -> float:
 # ---------------------------------------------------------------------- text
 def _intro(quick: bool) -> str:
     trials = ", ".join(f"{QUICK_TRIALS if quick else t}" for *_, t, _ in RUNS)
-    return f"""The references that serious users measure against (the user guide, "Beyond the
-sources"): the point-mass filter `pmf` (a grid of 61×61 nodes that follows the posterior
-and grows, up to 301 per axis, while the posterior is wider than 30 map cells, so that
-nodes stay within half a cell; log-space Bayes recursion, separable convolution with the
-INS-error kernel) and the bootstrap particle filter `pf` (5000 particles, or more while
-the cloud is wide: about one per half cell, up to 200 000; stratified prior, systematic
-resampling at ESS < M/2, Gordon's roughening), and the marginalised particle filter `mpf`
-(Schön, Gustafsson & Nordlund 2005; Nordlund & Gustafsson 2009: the same particles on the
-position error, each with a Kalman filter on the linear INS error states of
-`geofix.nav.errstate`, one covariance shared by all, the DVL folded in where a trial has one,
-a Liu–West kernel move after resampling), and `pmf:model=errstate` (the same grid carried
-through the error state's affine motion given the position, the linear states in one
-Kalman filter; no DVL). All use the one measurement model of
-`geofix.measurement`. They run on
-the bundled real-map scenarios of the source issues (scenario files unchanged, results stored
-apart as `filters_*`; {trials} seeded trials respectively), beside the batch methods of those
-sources (run leg by leg with an INS reset to each fix) and the SITAN bank where it applies.
-
-*End-point RMS* is `sqrt(mean(e²))` of the error at the last sample over the trials that did
-not fail (every mission ends long after the filters converge). *CRLB* is the posterior
-Cramér–Rao bound (`crlb_m`) of the INS error state the simulator draws (`geofix.evaluate.crlb`:
-the exact gradient of the bilinear map at the true footprints, the per-beam sensor and map
-noise, Gaussian priors with the simulator's second moments, the DVL where there is one);
-*CRLB (random walk)* is the earlier bound of a white position random walk (`crlb_rw_m`), which
-is not the limit of the simulated INS and which a filter can beat. *NEES* is the mean of
-`e^T C^-1 e` of the end error against the method's own covariance (about 2 when consistent);
-*false fix*
-is the share of trials ending more than 3 cells off while the method neither flagged its fix
-ambiguous nor covers the error with its own 3σ ellipse. The filters' integrity flag is: more
-than 5 % of the posterior farther than 3 map cells from the fix.
-"""
+    return prose("filters_intro", trials=trials)
 
 
 def _scenario_table(label: str, trials: int, stats: dict, crlb: dict) -> str:
@@ -304,27 +274,4 @@ def _verdict(label, stats, crlb, peers, batch, trials) -> str:
 
 
 def _discussion() -> str:
-    return f"""
-Notes. The PMF's grid starts at ±5 prior σ and follows the posterior (re-centred, rotated to
-its principal axes, spacing 1/6 of a posterior σ but at least 1 % of a map cell, never more
-than half a map cell while the node budget allows, and never dropping a node within 20
-nats of the peak), so it neither aliases a wide prior onto a wrong, narrow peak nor loses a
-second mode while the first looks better; its likelihood is flattened by the field's
-variance within one node while the grid is coarse. The measurement variance is per beam
-(sensor noise growing to the swath edges, plus map error), the same the CRLB uses. The
-process noise of both filters is the growth of the INS prior variance between samples
-treated as white, a stand-in for an INS error that is in truth a deterministic function of
-a dozen per-trial constants; that is why they stay well above the error-state bound where
-the INS drifts, while `mpf`, which carries those constants, gets close to it. The
-random-walk bound assumes the same white model as `pmf` and `pf`, so it is not a bound on
-the simulated system: a method below it says nothing.
-
-The hard case is **source 002** (a 30 km prior error, σ₀ = 12.4 km per axis, on a 1 km map
-with a 16-beam swath whose likelihood is narrower than one cell). A fixed 61×61 prior grid
-spans ±62 km with nodes 2 km apart and converged confidently on a wrong patch in 5 of 12
-trials; with the grid sized to the map cell (up to 301×301 nodes while the posterior is
-wide) and the support rule, every trial converges. The cost is time: the PMF and PF spend
-most of a trial on the first wide steps. The Stone Soup comparison uses a fixed grid and
-particle count of the same size on both sides.
-Results are stored under `{OUT.name}/filters_*`.
-"""
+    return prose("filters_discussion", out=OUT.name)
