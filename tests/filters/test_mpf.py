@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-from tests.conftest import small_mission_data
 
+from conftest import small_mission_data
 from geofix.errors import ConfigError, MatchError
 from geofix.evaluate.crlb import scenario_beam_variance, trial_crlb
 from geofix.evaluate.metrics import end_mahalanobis
