@@ -53,7 +53,7 @@ def _intro(trials: int, methods: list[str]) -> str:
         "The patent (Harbin Engineering University, 2013) reports no experiment and no "
         "numbers, so there is nothing to put beside ours; its fitness, transition-probability, "
         "DVL-constraint and MHD formulas were lost in the scan and are reconstructed (see "
-        "`geofix.match.abc`). As the issue asks, `abc-mhd` is compared with TERCOM and IOAP "
+        "`geofix.match.abc`). `abc-mhd` is compared with TERCOM and IOAP "
         "on the source-004 mission: the bundled Sandwell & Smith 2' Gulf of Alaska gravity "
         "grid cut to 138-136 W, 53-55 N and resampled bilinearly to 100 m (same box and start "
         "as `source004_main`), 10 m/s on N70E, 110 samples every 20 s, 1 mGal gravimeter "
