@@ -18,7 +18,6 @@ HERE = Path(__file__).parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT / "src"))
 os.environ.setdefault("MPLBACKEND", "Agg")
-os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import geofix  # noqa: E402
 
