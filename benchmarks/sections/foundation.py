@@ -67,7 +67,7 @@ def build(quick: bool = False) -> str:
     return prose(
         "foundation",
         title=TITLE,
-        name=scen.name,
+        scenario=scen.name,
         ins=ins,
         table=table,
         fig=fig,
