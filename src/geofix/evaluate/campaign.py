@@ -194,7 +194,7 @@ def run_campaign(
     >>> result.summary.methods["tercom"].success_rate["3c"] is not None
     True
     """
-    scenario = _override(scenario, trials, seed)
+    scenario = with_overrides(scenario, trials, seed)
     parsed = _parse_methods(methods)
     jobs = _check_jobs(jobs)
     out = Path(out_dir)
@@ -230,10 +230,6 @@ def run_campaign(
 
 def _no_progress(done: int, total: int) -> None:
     """The default progress report: none."""
-
-
-def _override(scenario: Scenario, trials: int | None, seed: int | None) -> Scenario:
-    return with_overrides(scenario, trials, seed)
 
 
 def check_out_dir(out: Path) -> None:

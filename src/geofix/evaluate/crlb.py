@@ -289,18 +289,26 @@ def trial_crlb(trial, grid: Grid, beam_var=None) -> TrialBound:
         ``trace`` of the bounds, m^2.
     """
     info = trial_information(trial, grid, beam_var)
-    sigma = np.asarray(trial.sigma_position, float)
-    rec = recursive_bound(info, process_variances(sigma), float(sigma[0]) ** 2)
-    rw = float(np.trace(rec[-1]))
+    rw = _random_walk_traces(trial, info)
     last = trial.leg_slices()[-1]
     batch = float(inverse_trace(info[last].sum(axis=0)))
+    traces = _bound_traces(trial, info, rw)
+    return TrialBound(float(traces[-1]), batch, float(np.mean(traces)), float(rw[-1]))
+
+
+def _random_walk_traces(trial, info: np.ndarray) -> np.ndarray:
+    """``(n,)`` ``trace(J_k^-1)`` of the random-walk bound, m^2."""
+    sigma = np.asarray(trial.sigma_position, float)
+    rec = recursive_bound(info, process_variances(sigma), float(sigma[0]) ** 2)
+    return np.trace(rec, axis1=-2, axis2=-1)
+
+
+def _bound_traces(trial, info: np.ndarray, rw: np.ndarray) -> np.ndarray:
+    """``(n,)`` traces of the error-state bound, m^2 (``rw`` without an INS model)."""
     es = trial_error_state(trial)
     if es is None:
-        track = float(np.mean(np.trace(rec, axis1=1, axis2=2)))
-        return TrialBound(rw, batch, track, rw)
-    pos = es.position_cov(error_state_bound(es, info))
-    traces = np.trace(pos, axis1=1, axis2=2)
-    return TrialBound(float(traces[-1]), batch, float(np.mean(traces)), rw)
+        return rw
+    return np.trace(es.position_cov(error_state_bound(es, info)), axis1=-2, axis2=-1)
 
 
 def bound_track(trial, grid: Grid, beam_var=None) -> np.ndarray:
@@ -315,13 +323,7 @@ def bound_track(trial, grid: Grid, beam_var=None) -> np.ndarray:
         ``(n,)`` ``sqrt(trace(J_k^-1))``, metres.
     """
     info = trial_information(trial, grid, beam_var)
-    es = trial_error_state(trial)
-    if es is not None:
-        pos = es.position_cov(error_state_bound(es, info))
-        return np.sqrt(np.trace(pos, axis1=-2, axis2=-1))
-    sigma = np.asarray(trial.sigma_position, float)
-    rec = recursive_bound(info, process_variances(sigma), float(sigma[0]) ** 2)
-    return np.sqrt(np.trace(rec, axis1=-2, axis2=-1))
+    return np.sqrt(_bound_traces(trial, info, _random_walk_traces(trial, info)))
 
 
 def scenario_beam_variance(scenario, offsets) -> np.ndarray:

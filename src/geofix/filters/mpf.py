@@ -64,6 +64,7 @@ from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.pf import (
     PfState,
     effective_sample_size,
+    linear_weights,
     spread_field_variance,
     systematic_resample,
 )
@@ -127,8 +128,7 @@ class MpfState:
     @property
     def weights(self) -> np.ndarray:
         """``(M,)`` linear weights summing to one."""
-        w = np.exp(self.log_weight - self.log_weight.max())
-        return w / w.sum()
+        return linear_weights(self.log_weight)
 
 
 @dataclass(frozen=True)

@@ -86,8 +86,7 @@ class PfState:
     @property
     def weights(self) -> np.ndarray:
         """``(M,)`` linear weights summing to one."""
-        w = np.exp(self.log_weight - self.log_weight.max())
-        return w / w.sum()
+        return linear_weights(self.log_weight)
 
 
 @dataclass(frozen=True)
@@ -249,6 +248,12 @@ class Pf(RecursiveFilter):
             spacing=spacing,
             resamples=state.resamples + 1,
         )
+
+
+def linear_weights(log_weight: np.ndarray) -> np.ndarray:
+    """Linear weights summing to one from log-weights (shifted by their maximum first)."""
+    w = np.exp(log_weight - log_weight.max())
+    return w / w.sum()
 
 
 def effective_sample_size(weights: np.ndarray) -> float:
