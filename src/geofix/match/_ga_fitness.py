@@ -213,3 +213,100 @@ def ga_offspring(
     step = rng.standard_normal(kids.shape) * mutation_scale * half
     kids = _clip_box(kids + hit * step, lower, upper)
     return kids[: population - 1].copy()
+
+
+@numba.njit(cache=True)
+def _merge_pool(pop, cost, k, elite, elite_cost, sca_pop, sca_cost):  # pragma: no cover
+    """The selection pool: population without its elite, refined elite, SCA population.
+
+    The order of ``vstack([delete(pop, k), elite, sca_pop])`` in the numpy engine.
+    """
+    n, m = pop.shape[0], sca_pop.shape[0]
+    pool = np.empty((n + m, 4))
+    pool_cost = np.empty(n + m)
+    j = 0
+    for p in range(n):
+        if p != k:
+            pool[j] = pop[p]
+            pool_cost[j] = cost[p]
+            j += 1
+    pool[j] = elite
+    pool_cost[j] = elite_cost
+    pool[j + 1 :] = sca_pop
+    pool_cost[j + 1 :] = sca_cost
+    return pool, pool_cost
+
+
+@numba.njit(cache=True)
+def ga_search(rng, pop, cost, mad, fitness, box, ga_settings, sca_settings):  # pragma: no cover
+    """The whole GA-SCA generation loop, compiled (one call per match).
+
+    The same steps and random draws, in the same order, as the generation loop of
+    :meth:`geofix.match.ga_sca.GaSca.match` with ``engine="numpy"``: SCA refinement of the
+    elite, selection pool, offspring, scoring, stop rule.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The match's random source (advanced in place).
+    pop, cost, mad : numpy.ndarray
+        ``(P, 4)`` initial population, its ``(P,)`` GA costs and mean absolute differences.
+    fitness : tuple
+        ``(head, tail)`` arguments of :func:`ga_costs` around ``params``.
+    box : tuple
+        ``(lower, upper, sca_half)``: ``(4,)`` search box and SCA half-widths.
+    ga_settings : tuple
+        ``(max_generations, stall_generations, tolerance, crossover_rate, mutation_rate,
+        mutation_scale)``.
+    sca_settings : tuple
+        ``(uses_sca, sca_population, sca_iterations, sca_a)``.
+
+    Returns
+    -------
+    tuple
+        ``(best_x, best_cost, archive_params, archive_mad, last_gain, generations)``: the
+        archive holds the initial population and every generation's children.
+    """
+    head, tail = fitness
+    lower, upper, half = box
+    max_gen, stall, tolerance, crossover, mutation_rate, mutation_scale = ga_settings
+    uses_sca, sca_population, sca_iterations, sca_a = sca_settings
+    population = pop.shape[0]
+    archive = np.empty(((max_gen + 1) * population, 4))
+    archive_mad = np.empty((max_gen + 1) * population)
+    archive[:population] = pop
+    archive_mad[:population] = mad
+    used = population
+    k = int(np.argmin(cost))
+    best_x, best_cost = pop[k].copy(), cost[k]
+    last_gain, generation = 0, 0
+    for generation in range(1, max_gen + 1):
+        k = int(np.argmin(cost))
+        elite, elite_cost = pop[k].copy(), cost[k]
+        pool, pool_cost = pop, cost
+        if uses_sca:
+            elite, elite_cost, sca_pop, sca_cost = sca_refine(
+                rng, elite, half, lower, upper, sca_population, sca_iterations, sca_a, fitness
+            )
+            pool, pool_cost = _merge_pool(pop, cost, k, elite, elite_cost, sca_pop, sca_cost)
+        children = ga_offspring(
+            rng, pool, pool_cost, population, crossover, mutation_rate, mutation_scale, lower, upper
+        )
+        new_cost, _, new_mad = ga_costs(*head, children, *tail)
+        archive[used : used + children.shape[0]] = children
+        archive_mad[used : used + children.shape[0]] = new_mad
+        used += children.shape[0]
+        pop = np.empty((population, 4))
+        pop[0] = elite
+        pop[1:] = children
+        cost = np.empty(population)
+        cost[0] = elite_cost
+        cost[1:] = new_cost
+        k = int(np.argmin(cost))
+        if cost[k] < best_cost * (1 - tolerance):
+            last_gain = generation
+        if cost[k] < best_cost:
+            best_x, best_cost = pop[k].copy(), cost[k]
+        if generation - last_gain >= stall:
+            break
+    return best_x, best_cost, archive[:used], archive_mad[:used], last_gain, generation

@@ -45,10 +45,12 @@ best cost seen has not improved by more than ``tolerance`` (relative) for
 the diagnostics is the generation of the last such improvement (the source's
 "iterations at convergence"), ``generations`` the number run.
 
-Each generation's population (and each SCA step) is scored in one call of a compiled
-kernel (:mod:`geofix.match._ga_fitness`: transform, footprints, the shared bilinear read
-and the three costs in one pass); ``engine="numpy"`` keeps the vectorised numpy
-formulation (one look-up of all individuals x samples x sequences) as the reference.
+The whole generation loop -- SCA refinement, selection, crossover, mutation, scoring and
+the stop rule -- runs in one compiled call per match (:func:`geofix.match._ga_fitness.ga_search`;
+each population is scored in one pass of transform, footprints, the shared bilinear read
+and the three costs); ``engine="numpy"`` keeps the vectorised numpy formulation (one
+look-up of all individuals x samples x sequences, the loop in Python) as the reference.
+Both draw the same random numbers in the same order and give the same fix.
 """
 
 from __future__ import annotations
@@ -67,7 +69,7 @@ from geofix.match._affine import (
     translation_covariance,
     window_std,
 )
-from geofix.match._ga_fitness import ga_costs, ga_offspring, sca_refine
+from geofix.match._ga_fitness import ga_costs, ga_offspring, ga_search, sca_refine
 from geofix.match.integrity import terrain_integrity
 from geofix.problem import Fix, MatchProblem
 
@@ -243,6 +245,8 @@ class GaSca:
         ctx = self._context(problem)
         pop = rng.uniform(ctx.lower, ctx.upper, size=(self.population, 4))
         cost, _, mad = self._evaluate(ctx, pop)
+        if self.engine == "numba":
+            return self._match_compiled(ctx, pop, cost, mad, rng)
         archive = [(pop, mad)]
         best_x, best_cost = pop[np.argmin(cost)].copy(), float(np.min(cost))
         last_gain, generation = 0, 0
@@ -258,6 +262,42 @@ class GaSca:
         if not np.isfinite(best_cost):
             raise MatchError("ga-sca: no candidate in the search box lies on valid map data")
         return self._fix(ctx, best_x, best_cost, archive, last_gain, generation)
+
+    def _match_compiled(self, ctx, pop, cost, mad, rng) -> Fix:
+        """The generation loop in one compiled call (:func:`ga_search`), same draws."""
+        half = 0.5 * (ctx.upper - ctx.lower) * np.array([0.1, 0.1, 0.2, 0.2])
+        ga_settings = (
+            int(self.max_generations),
+            int(self.stall_generations),
+            float(self.tolerance),
+            float(self.crossover_rate),
+            float(self.mutation_rate),
+            float(self.mutation_scale),
+        )
+        sca_settings = (
+            self.uses_sca,
+            int(self.sca_population),
+            int(self.sca_iterations),
+            float(self.sca_a),
+        )
+        best_x, best_cost, params, mads, last_gain, generations = ga_search(
+            rng,
+            np.ascontiguousarray(pop, dtype=float),
+            cost,
+            mad,
+            self._fitness_args(ctx),
+            (ctx.lower, ctx.upper, half),
+            ga_settings,
+            sca_settings,
+        )
+        per_generation = self.population - 1
+        if self.uses_sca:
+            per_generation += self.sca_population * (self.sca_iterations + 1)
+        ctx.counter[0] += generations * per_generation
+        if not np.isfinite(best_cost):
+            raise MatchError("ga-sca: no candidate in the search box lies on valid map data")
+        archive = [(params, mads)]
+        return self._fix(ctx, best_x, float(best_cost), archive, last_gain, generations)
 
     def _generation(self, ctx, pop, cost, rng, archive):
         """One GA generation: SCA on the elite, selection, crossover, mutation."""
