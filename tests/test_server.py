@@ -154,3 +154,31 @@ def test_lon_lat_requests_land_in_the_map_frame_and_null_offsets_are_refused():
     assert "finite" in session.handle(json.dumps(bad).encode())["error"]
     wrong = {"type": "ping", "t": 0.0, "beams": [[0.0, True, -1500.0]] * 3}
     assert "holds a bool" in session.handle(json.dumps(wrong).encode())["error"]
+
+
+def test_ping_message_sends_missing_values_as_null_and_refuses_bad_offsets():
+    from geofix.client import ping_message
+
+    beams = np.array([[-10.0, 0.5, 101.25], [0.0, 0.0, np.nan], [10.0, -0.5, np.inf]])
+    message = ping_message(3.0, beams)
+    assert message == {
+        "type": "ping",
+        "t": 3.0,
+        "beams": [[-10.0, 0.5, 101.25], [0.0, 0.0, None], [10.0, -0.5, None]],
+    }
+    beams[0, 0] = np.nan
+    with pytest.raises(ValueError, match="offsets must be finite"):
+        ping_message(3.0, beams)
+    with pytest.raises(ValueError, match=r"\(b, 3\)"):
+        ping_message(3.0, np.zeros((4, 2)))
+
+
+def test_requests_orjson_refuses_are_answered_as_the_standard_library_would():
+    from geofix.server import RequestError, parse_request
+
+    assert parse_request(b'{"type": "estimate", "n": 1.5e3}') == {"type": "estimate", "n": 1500.0}
+    with pytest.raises(RequestError, match="NaN is not valid JSON"):
+        parse_request(b'{"type": "ping", "t": NaN}')
+    assert parse_request(b'{"type": "nav", "t": 123456789012345678901234567890}')["t"] > 1e29
+    with pytest.raises(RequestError, match="not JSON"):
+        parse_request(b'{"type": "nav",')

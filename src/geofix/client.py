@@ -15,9 +15,11 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import socket
 
 import numpy as np
+import orjson
 
 from geofix.errors import GeofixError
 
@@ -70,8 +72,16 @@ class Client:
         return json.loads(reply)
 
     def request(self, message: dict, check: bool = True) -> dict:
-        """Send one request object and return its reply."""
-        reply = self.send_line(json.dumps(message, allow_nan=False).encode())
+        """Send one request object and return its reply.
+
+        Raises
+        ------
+        ValueError
+            A number in ``message`` is NaN or infinite (not JSON).
+        """
+        return self._checked(self.send_line(json.dumps(message, allow_nan=False).encode()), check)
+
+    def _checked(self, reply: dict, check: bool = True) -> dict:
         if check and not reply.get("ok"):
             raise ServerError(str(reply.get("error")))
         return reply
@@ -92,7 +102,9 @@ class Client:
 
     def ping(self, t: float, beams, **kw) -> dict:
         """``ping``: beams ``(b, 3)`` ``(across_m, along_m, value)``; NaN values go as null."""
-        return self.request(ping_message(t, beams), **kw)
+        # orjson: ten times faster than json on hundreds of beams; ping_message has
+        # refused every non-finite number it would otherwise write as null.
+        return self._checked(self.send_line(orjson.dumps(ping_message(t, beams))), **kw)
 
     def estimate(self, **kw) -> dict:
         """``estimate``: the current estimate."""
@@ -101,8 +113,12 @@ class Client:
 
 def ping_message(t: float, beams) -> dict:
     """The ``ping`` request for beams ``(b, 3)`` (NaN values become null)."""
-    rows = [
-        [float(a), float(b), None if not np.isfinite(v) else float(v)]
-        for a, b, v in np.asarray(beams, dtype=float)
-    ]
+    array = np.asarray(beams, dtype=float)
+    if array.ndim != 2 or array.shape[1] != 3:
+        raise ValueError(f"ping: beams must be (b, 3) across_m, along_m, value; got {array.shape}")
+    if not np.isfinite(array[:, :2]).all() or not math.isfinite(float(t)):
+        raise ValueError("ping: t and the beam offsets must be finite")
+    rows = array.tolist()
+    for i in np.flatnonzero(~np.isfinite(array[:, 2])):
+        rows[i][2] = None
     return {"type": "ping", "t": float(t), "beams": rows}

