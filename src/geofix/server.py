@@ -132,12 +132,17 @@ class Session:
         Seed of the connection's navigator.
     map_error : Grid, optional
         Per-cell map standard deviation.
+    ins_model : InsErrorModel, optional
+        The INS error model of a filter on the INS error state (``mpf``,
+        ``pmf:model=errstate``; ``geofix serve --ins SCENARIO.yaml``).
     """
 
-    def __init__(self, grid: Grid, method: str, settings=None, seed: int = 0, map_error=None):
+    def __init__(
+        self, grid: Grid, method: str, settings=None, seed: int = 0, map_error=None, ins_model=None
+    ):
         from geofix.navigator import Navigator
 
-        self.navigator = Navigator(grid, method, settings, seed=seed, map_error=map_error)
+        self.navigator = Navigator(grid, method, settings, seed, map_error, ins_model)
         self.grid = grid
         self._proj: Callable[[float, float], tuple[float, float]] | None = None  # lon, lat -> x, y
 
@@ -227,10 +232,11 @@ OVERSIZED = {"ok": False, "error": f"request line longer than {MAX_LINE_BYTES} b
 class NavigatorServer:
     """The asyncio TCP server: :meth:`start`, then :meth:`stop` (or ``serve_forever``)."""
 
-    def __init__(self, grid, method, settings=None, seed=0, map_error=None) -> None:
+    def __init__(self, grid, method, settings=None, seed=0, map_error=None, ins_model=None) -> None:
         self.grid, self.method, self.settings = grid, method, settings
-        self.seed, self.map_error = seed, map_error
-        Session(grid, method, settings, seed, map_error)  # refuse a bad method or setting now
+        self.seed, self.map_error, self.ins_model = seed, map_error, ins_model
+        # refuse a bad method or setting (or a missing INS model) now
+        Session(grid, method, settings, seed, map_error, ins_model)
         self._server: asyncio.base_events.Server | None = None
         self.connections = 0
 
@@ -247,7 +253,9 @@ class NavigatorServer:
 
     async def _serve(self, reader, writer) -> None:
         self.connections += 1
-        session = Session(self.grid, self.method, self.settings, self.seed, self.map_error)
+        session = Session(
+            self.grid, self.method, self.settings, self.seed, self.map_error, self.ins_model
+        )
         try:
             async for line in _lines(reader):
                 reply = OVERSIZED if line is None else session.handle(line)
@@ -261,11 +269,16 @@ class NavigatorServer:
                 await writer.wait_closed()
 
 
-def serve(grid, method, host="127.0.0.1", port=7010, settings=None, seed=0, map_error=None):
-    """Run the server until interrupted (``geofix serve``); prints nothing itself."""
+def serve(
+    grid, method, host="127.0.0.1", port=7010, settings=None, seed=0, map_error=None, ins_model=None
+):
+    """Run the server until interrupted (``geofix serve``); prints nothing itself.
+
+    A bad method or setting (or ``mpf`` without ``ins_model``) raises before listening.
+    """
+    server = NavigatorServer(grid, method, settings, seed, map_error, ins_model)
 
     async def main():
-        server = NavigatorServer(grid, method, settings, seed, map_error)
         await server.start(host, port)
         await asyncio.Event().wait()
 
@@ -273,13 +286,15 @@ def serve(grid, method, host="127.0.0.1", port=7010, settings=None, seed=0, map_
 
 
 @contextlib.contextmanager
-def serve_in_thread(grid, method, host="127.0.0.1", settings=None, seed=0, map_error=None):
+def serve_in_thread(
+    grid, method, host="127.0.0.1", settings=None, seed=0, map_error=None, ins_model=None
+):
     """Run a server on a free port in a background thread; yields ``(host, port)``.
 
     The server and its thread stop when the ``with`` block ends.
     """
     loop = asyncio.new_event_loop()
-    server = NavigatorServer(grid, method, settings, seed, map_error)
+    server = NavigatorServer(grid, method, settings, seed, map_error, ins_model)
     port = loop.run_until_complete(server.start(host, 0))
     thread = threading.Thread(target=loop.run_forever, daemon=True)
     thread.start()

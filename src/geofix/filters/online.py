@@ -37,7 +37,7 @@ All randomness goes through the one generator handed in.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -231,12 +231,20 @@ class Estimate:
         }
 
 
-def start_problem(grid: Grid, t: float, position, sigma_m: float, heading: float) -> MatchProblem:
+def start_problem(
+    grid: Grid, t: float, position, sigma_m: float, heading: float, ins_model=None
+) -> MatchProblem:
     """A one-sample :class:`MatchProblem` carrying a prior for ``filter.initialize``.
 
     ``measured`` holds one placeholder reading of 0 (filters check that a problem has
-    some finite reading; :meth:`OnlineFilter.init` never updates with it).
+    some finite reading; :meth:`OnlineFilter.init` never updates with it). An
+    ``ins_model`` (:class:`~geofix.nav.errstate.InsErrorModel`) is carried with its
+    position prior replaced by the start's: no fixed offset, per-axis ``sigma_m``; its
+    velocity, tilt, bias and heading-error prior are kept. A filter on it builds each
+    later step from the motion (:func:`geofix.nav.errstate.step_matrices`).
     """
+    if ins_model is not None:
+        ins_model = replace(ins_model, initial_offset=(0.0, 0.0), initial_std=float(sigma_m))
     return MatchProblem(
         grid=grid,
         indicated=np.asarray(position, dtype=float).reshape(1, 2),
@@ -245,6 +253,7 @@ def start_problem(grid: Grid, t: float, position, sigma_m: float, heading: float
         measured=np.zeros((1, 1)),
         sigma_position=np.array([float(sigma_m)]),
         times=np.array([float(t)]),
+        ins_model=ins_model,
     )
 
 
@@ -313,14 +322,20 @@ class OnlineFilter:
     map_error : Grid, optional
         The map's per-cell standard deviation layer (added as map-error variance to the
         measurement variance at each beam's footprint).
+    ins_model : InsErrorModel, optional
+        The INS error model (:mod:`geofix.nav.errstate`) of a filter that needs one
+        (``mpf``, ``pmf:model=errstate``); see :func:`start_problem` for its prior.
     """
 
-    def __init__(self, filt, grid: Grid, settings=None, rng=None, map_error=None) -> None:
+    def __init__(
+        self, filt, grid: Grid, settings=None, rng=None, map_error=None, ins_model=None
+    ) -> None:
         self.filter = filt
         self.grid = grid
         self.settings = settings or NavigatorSettings()
         self.rng = rng
         self.map_error = map_error
+        self.ins_model = ins_model
         self.state = None
         self._nis: deque[float] = deque(maxlen=max(self.settings.nis_window, 1))
         self._pose: tuple[float, np.ndarray, float] | None = None  # (t, position (2,), heading)
@@ -395,7 +410,7 @@ class OnlineFilter:
         self._check_start_box(position, sigma_m)
         try:
             state = self.filter.initialize(
-                start_problem(self.grid, t, position, sigma_m, heading), self.rng
+                start_problem(self.grid, t, position, sigma_m, heading, self.ins_model), self.rng
             )
         except MatchError as exc:
             raise InputError(f"init: {exc}") from None
@@ -553,7 +568,8 @@ class OnlineFilter:
         centre = position + self._good_offset
         try:
             self.state = self.filter.initialize(
-                start_problem(self.grid, t, centre, self._prior_sigma, heading), self.rng
+                start_problem(self.grid, t, centre, self._prior_sigma, heading, self.ins_model),
+                self.rng,
             )
         except MatchError:
             return lost  # the restart box is off the map: keep the old posterior, stay lost
