@@ -21,9 +21,12 @@ owns everything a navigator adds around it:
   rejected as an outlier and not folded in;
 - **status** -- ``initialising`` until a ping is accepted, then ``converging``, then
   ``converged`` once the posterior's largest 1-sigma is below ``converge_sigma_m`` and the
-  MMSE (mean) and MLE (mode) positions are within ``converge_mle_m`` of each other (the
-  convergence test of MBARI's TRN, Stuckey et al. / Meduna 2011, without its
-  KL-divergence term);
+  MMSE (mean) and MLE (mode) positions are within ``converge_mle_m`` of each other and
+  the posterior is close to a Gaussian: the KL divergence of the grid's or particles'
+  posterior to the Gaussian of the same mean and covariance is below
+  ``converge_kl_nats`` (the convergence test of MBARI's TRN, Meduna 2011; the estimators
+  are those of :mod:`geofix.filters.convergence`; a filter without weighted points, an
+  EKF, skips the KL term);
 - **lost and re-initialisation** (TRN's rules) -- when the mean NIS over the last
   ``nis_window`` pings exceeds ``nis_limit``, when no ping has been accepted for
   ``outage_s`` (a measurement or bottom-lock outage), or when the posterior grows beyond
@@ -43,6 +46,7 @@ import numpy as np
 
 from geofix.errors import ConfigError, InputError, MatchError
 from geofix.filters.base import Motion, Observation
+from geofix.filters.convergence import posterior_kl
 from geofix.maps.grid import Grid
 from geofix.measurement import map_error_variance, predict_measurements
 from geofix.problem import MatchProblem
@@ -82,6 +86,11 @@ class NavigatorSettings:
         Largest posterior 1-sigma for ``converged``, metres (None: 2 map cells).
     converge_mle_m : float or None
         Largest MMSE-to-MLE distance for ``converged``, metres (None: ``max(10 m, 1 cell)``).
+    converge_kl_nats : float or None
+        Largest KL divergence of the posterior to its moment-matched Gaussian for
+        ``converged``, nats (:mod:`geofix.filters.convergence`; None: no KL term). The
+        default 0.2 nats passes a Gaussian and refuses two equal modes six standard
+        deviations (of one mode) apart (about 0.47 nats).
     min_start_share : float
         Share of a 9 x 9 lattice over the ``+-2 sigma`` start box that must read valid map
         data for :meth:`OnlineFilter.init` (start-up gating).
@@ -109,6 +118,7 @@ class NavigatorSettings:
     max_update_beams: int | None = 64
     converge_sigma_m: float | None = None
     converge_mle_m: float | None = None
+    converge_kl_nats: float | None = 0.2
     min_start_share: float = 0.2
     max_pose_gap_s: float | None = 5.0
     max_speed_m_s: float | None = 30.0
@@ -127,6 +137,7 @@ class NavigatorSettings:
             "max_update_beams",
             "converge_sigma_m",
             "converge_mle_m",
+            "converge_kl_nats",
             "max_pose_gap_s",
             "max_speed_m_s",
         )
@@ -196,6 +207,9 @@ class Estimate:
         The last ping was folded in (False: gated out, too few beams, or no ping yet).
     pings, rejected, reinits : int
         Pings seen, pings gated out, re-initialisations so far.
+    kl_nats : float
+        KL divergence of the posterior to its Gaussian, nats (NaN: not computed, or a
+        filter without weighted points).
     """
 
     t: float
@@ -208,6 +222,7 @@ class Estimate:
     pings: int = 0
     rejected: int = 0
     reinits: int = 0
+    kl_nats: float = float("nan")
 
     @property
     def sigma_m(self) -> float:
@@ -215,7 +230,11 @@ class Estimate:
         return float(np.sqrt(max(np.linalg.eigvalsh(self.covariance).max(), 0.0)))
 
     def to_dict(self) -> dict:
-        """JSON-ready mapping: ``t, x, y, cov, status, mle, nis, accepted, pings, reinits``."""
+        """JSON-ready mapping of the estimate.
+
+        Keys ``t, x, y, cov, status, mle, nis, accepted, pings, rejected, reinits,
+        kl_nats`` (``nis`` and ``kl_nats`` null when not computed).
+        """
         return {
             "t": float(self.t),
             "x": float(self.position[0]),
@@ -228,6 +247,7 @@ class Estimate:
             "pings": int(self.pings),
             "rejected": int(self.rejected),
             "reinits": int(self.reinits),
+            "kl_nats": None if not np.isfinite(self.kl_nats) else float(self.kl_nats),
         }
 
 
@@ -519,8 +539,13 @@ class OnlineFilter:
         mle = mode_position(self.filter, self.state)
         mean, cov = np.asarray(mean, dtype=float), np.asarray(cov, dtype=float)
         status = "initialising" if self._accepted_count == 0 else "converging"
+        kl = float("nan")
         if status == "converging" and self._converged(mean, cov, mle):
             status = "converged"
+            if self.settings.converge_kl_nats is not None:
+                kl = posterior_kl(self.state)
+                if np.isfinite(kl) and kl > self.settings.converge_kl_nats:
+                    status = "converging"
         return Estimate(
             t=float(t),
             position=mean,
@@ -532,6 +557,7 @@ class OnlineFilter:
             pings=self._pings,
             rejected=self._rejected,
             reinits=self._reinits,
+            kl_nats=kl,
         )
 
     def _converged(self, mean, cov, mle) -> bool:
