@@ -167,3 +167,53 @@ def test_a_mounting_offset_moves_every_beam_by_it(synthetic_grid, rng):
     assert np.hypot(*(right[-1].position - truth[-1])) < 2.0
     # without it the fix absorbs the 14 m lever arm
     assert np.hypot(*(wrong[-1].position - truth[-1])) > 8.0
+
+
+def test_attitude_levels_a_nadir_beam_by_the_known_angle():
+    from geofix.sensors.attitude import level_offsets
+
+    roll = pitch = np.radians(10.0)
+    slant = 100.0 / np.cos(roll)  # a nadir beam that meets the bottom 100 m down
+    rolled = level_offsets([[0.0, 0.0, slant]], roll=roll)[0]
+    np.testing.assert_allclose(rolled, [-100.0 * np.tan(roll), 0.0, 100.0], atol=1e-12)
+    pitched = level_offsets([[0.0, 0.0, slant]], pitch=pitch)[0]
+    np.testing.assert_allclose(pitched, [0.0, 100.0 * np.tan(pitch), 100.0], atol=1e-12)
+    # a sensor 2 m below the reference point moves 2 sin(30 deg) = 1 m to port
+    lever = level_offsets([[0.0, 0.0, 0.0]], roll=np.radians(30.0), mount=(0.0, 0.0, 2.0))[0]
+    np.testing.assert_allclose(lever[:2], [-1.0, 0.0], atol=1e-12)
+    # an attitude-free beam is unchanged
+    np.testing.assert_allclose(level_offsets([[40.0, -5.0, 90.0]])[0], [40.0, -5.0, 90.0])
+
+
+def test_body_frame_beams_with_roll_and_pitch_are_the_levelled_beams(synthetic_grid, rng):
+    """(b, 4) body beams + attitude give the estimates of the same beams levelled by hand."""
+    from geofix.sensors.attitude import level_offsets
+
+    t, truth, _ = pings(synthetic_grid, rng, n=12)
+    roll = np.radians(8.0) * np.sin(0.5 * t)
+    pitch = np.radians(-3.0) * np.cos(0.3 * t)
+    mount = (1.0, 2.0, 3.0)
+    body_pings, flat_pings = [], []
+    for k in range(t.size):
+        body = np.column_stack([OFFSETS, np.full(ACROSS.size, 80.0)])
+        level = level_offsets(body, roll[k], pitch[k], mount)
+        values = synthetic_grid.sample(*footprint_xy(truth[k], np.asarray(np.pi / 4), level[:, :2]))
+        body_pings.append(np.column_stack([body, values]))
+        flat_pings.append(np.column_stack([level[:, :2], values]))
+        assert abs(level[ACROSS.size // 2, 0] - (1.0 - 83.0 * np.sin(roll[k]))) < 3.0
+    a = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3, "mount_offset_m": mount}, seed=2)
+    b = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3}, seed=2)
+    for nav in (a, b):
+        nav.init(t[0], truth[0] + 20.0, 40.0, np.pi / 4)
+    for k in range(t.size):
+        if k:
+            a.motion(t[k], truth[k] + 20.0, np.pi / 4)
+            b.motion(t[k], truth[k] + 20.0, np.pi / 4)
+        ea = a.measure(t[k], body_pings[k], roll=roll[k], pitch=pitch[k])
+        eb = b.measure(t[k], flat_pings[k])
+        np.testing.assert_allclose(ea.position, eb.position, atol=1e-6)
+    assert np.hypot(*(ea.position - truth[-1])) < 5.0
+    with pytest.raises(InputError, match="roll must be within"):
+        a.measure(t[-1], body_pings[-1], roll=2.0)
+    with pytest.raises(InputError, match="pitch must be finite"):
+        a.measure(t[-1], body_pings[-1], pitch=float("nan"))

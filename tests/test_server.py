@@ -154,3 +154,29 @@ def test_lon_lat_requests_land_in_the_map_frame_and_null_offsets_are_refused():
     assert "finite" in session.handle(json.dumps(bad).encode())["error"]
     wrong = {"type": "ping", "t": 0.0, "beams": [[0.0, True, -1500.0]] * 3}
     assert "holds a bool" in session.handle(json.dumps(wrong).encode())["error"]
+
+
+def test_a_ping_of_body_frame_beams_with_attitude_is_levelled(synthetic_grid):
+    from geofix.sensors.attitude import level_offsets
+    from geofix.server import Session
+
+    body = np.column_stack([np.linspace(-100, 100, 9), np.zeros(9), np.full(9, 60.0)])
+    roll, pitch = np.radians(6.0), np.radians(-2.0)
+    level = level_offsets(body, roll, pitch)[:, :2]
+    values = synthetic_grid.sample(600.0 + level[:, 0], 500.0 + level[:, 1])
+    init = json.dumps({"type": "init", "t": 0, "x": 600.0, "y": 500.0, "sigma_m": 30.0})
+    four = [[*b, v] for b, v in zip(body.tolist(), values.tolist(), strict=True)]
+    three = [[*b, v] for b, v in zip(level.tolist(), values.tolist(), strict=True)]
+    ping4 = {"type": "ping", "t": 0, "beams": four, "roll_deg": 6.0, "pitch_deg": -2.0}
+    ping3 = {"type": "ping", "t": 0, "beams": three}
+    replies = []
+    for ping in (ping4, ping3):
+        session = Session(synthetic_grid, "pmf", seed=3)
+        session.handle(init.encode())
+        replies.append(session.handle(json.dumps(ping).encode()))
+    assert replies[0]["ok"] and replies[1]["ok"]
+    assert replies[0]["x"] == pytest.approx(replies[1]["x"], abs=1e-6)
+    assert replies[0]["y"] == pytest.approx(replies[1]["y"], abs=1e-6)
+    mixed = {"type": "ping", "t": 0, "beams": [four[0], three[1]]}
+    reply = session.handle(json.dumps(mixed).encode())
+    assert not reply["ok"] and "beam 1 must be" in reply["error"]

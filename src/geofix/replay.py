@@ -167,9 +167,14 @@ def replay(
 
 
 def drive(nav, mission: Mission, inputs: ReplayInput, noise_var=None) -> list[Estimate]:
-    """Feed one navigator the mission: init, then per ping ``motion`` and ``measure``."""
+    """Feed one navigator the mission: init, then per ping ``motion`` and ``measure``.
+
+    The log's roll and pitch (where it has them) go with every ping: they level the
+    sensor's mounting offset (the beams of a log are level-frame offsets already).
+    """
     t = np.asarray(mission.times, dtype=float)
     sigma = inputs.sigma
+    roll, pitch = (_attitude(angles, mission.n) for angles in (mission.roll, mission.pitch))
     nav.init(t[0], inputs.indicated[0], float(sigma[0]), float(inputs.heading[0]))
     out = []
     for k in range(mission.n):
@@ -179,8 +184,15 @@ def drive(nav, mission: Mission, inputs: ReplayInput, noise_var=None) -> list[Es
         beams = np.asarray(mission.beams[k], dtype=float)
         keep = np.isfinite(beams[:, :2]).all(axis=1)
         var = noise_var if np.ndim(noise_var) == 0 else np.asarray(noise_var)[keep]
-        out.append(nav.measure(t[k], beams[keep], noise_var=var))
+        out.append(nav.measure(t[k], beams[keep], var, roll[k], pitch[k]))
     return out
+
+
+def _attitude(angles, n: int) -> list:
+    """Per-ping angles (radians) or None where the log has none (or a NaN)."""
+    if angles is None:
+        return [None] * n
+    return [float(a) if np.isfinite(a) else None for a in np.asarray(angles, dtype=float)]
 
 
 def _noise_var(mission: Mission):

@@ -9,7 +9,9 @@ line, in order. Requests (UTF-8 JSON objects, one per line, at most
   position in the map's metric frame (``lon`` / ``lat`` in degrees instead of ``x`` /
   ``y`` when the map was projected from lon/lat);
 - ``{"type": "ping", "t": s, "beams": [[across_m, along_m, value], ...]}`` (``value``
-  null for a missing beam);
+  null for a missing beam), or rows ``[across_m, along_m, down_m, value]`` of body-frame
+  beam vectors; optional ``roll_deg`` / ``pitch_deg`` (the vehicle attitude, levelling
+  body-frame beams and the mounting offset: ``geofix.sensors.attitude``);
 - ``{"type": "estimate"}``.
 
 Replies: ``{"ok": true, "type": ..., "t", "x", "y", "cov": [[..], [..]], "status", "mle",
@@ -97,18 +99,22 @@ def _beams(request: dict, max_beams: int) -> np.ndarray:
         raise RequestError("ping: beams must be a non-empty list of [across_m, along_m, value]")
     if len(beams) > max_beams:
         raise RequestError(f"ping: {len(beams)} beams, more than max_beams = {max_beams}")
+    width = len(beams[0]) if isinstance(beams[0], list) and len(beams[0]) == 4 else 3
     if (
-        all(type(row) is list and len(row) == 3 for row in beams)
+        all(type(row) is list and len(row) == width for row in beams)
         and {type(v) for row in beams for v in row} <= _NUMBER_OR_NULL
     ):
         out = np.array(beams, dtype=float)  # null becomes NaN (offsets are checked later)
         return out
-    out = np.empty((len(beams), 3))
+    out = np.empty((len(beams), width))
     for i, row in enumerate(beams):
-        if not isinstance(row, list) or len(row) != 3:
-            raise RequestError(f"ping: beam {i} must be [across_m, along_m, value]")
+        if not isinstance(row, list) or len(row) != width:
+            raise RequestError(
+                f"ping: beam {i} must be [across_m, along_m, value] "
+                "(or [across_m, along_m, down_m, value] in every row)"
+            )
         for j, v in enumerate(row):
-            if v is None and j == 2:
+            if v is None and j == width - 1:
                 out[i, j] = np.nan
             elif isinstance(v, bool) or not isinstance(v, int | float):
                 raise RequestError(f"ping: beam {i} holds a {type(v).__name__}, not a number")
@@ -186,7 +192,11 @@ class Session:
 
     def _ping(self, request: dict):
         beams = _beams(request, self.navigator.settings.max_beams)
-        return self.navigator.measure(_number(request, "t"), beams)
+        roll, pitch = (
+            float(np.deg2rad(_number(request, key))) if key in request else None
+            for key in ("roll_deg", "pitch_deg")
+        )
+        return self.navigator.measure(_number(request, "t"), beams, roll=roll, pitch=pitch)
 
     def _estimate(self, request: dict):
         return self.navigator.estimate()

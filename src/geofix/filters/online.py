@@ -50,6 +50,7 @@ from geofix.filters.convergence import posterior_kl
 from geofix.maps.grid import Grid
 from geofix.measurement import map_error_variance, predict_measurements
 from geofix.problem import MatchProblem
+from geofix.sensors.attitude import level_offsets
 
 STATUSES = ("initialising", "converging", "converged", "lost")
 
@@ -102,8 +103,10 @@ class NavigatorSettings:
         Most beams a ping may carry.
     mount_offset_m : tuple of float
         The sensor's mounting offset from the navigation reference point, ``(across,
-        along)`` metres in the body frame (starboard, forward), added to every beam's
-        offsets.
+        along)`` or ``(across, along, down)`` metres in the body frame (starboard,
+        forward, down), added to every beam's offsets; with a ping's roll and pitch it is
+        levelled with the beams first (:mod:`geofix.sensors.attitude`), so a sensor
+        mounted below the reference point moves across under a roll.
     """
 
     noise_std: float = 2.0
@@ -123,7 +126,7 @@ class NavigatorSettings:
     max_pose_gap_s: float | None = 5.0
     max_speed_m_s: float | None = 30.0
     max_beams: int = 4096
-    mount_offset_m: tuple[float, float] = (0.0, 0.0)
+    mount_offset_m: tuple[float, ...] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         positive = ("noise_std", "nis_limit", "max_beams", "min_beams")
@@ -150,9 +153,10 @@ class NavigatorSettings:
         if not 0.0 <= self.min_start_share <= 1.0:
             raise ConfigError("navigator: min_start_share must be in [0, 1]")
         mount = np.asarray(self.mount_offset_m, dtype=float)
-        if mount.shape != (2,) or not np.isfinite(mount).all():
+        if mount.shape not in ((2,), (3,)) or not np.isfinite(mount).all():
             raise ConfigError(
-                "navigator: mount_offset_m must be two finite numbers (across, along)"
+                "navigator: mount_offset_m must be two or three finite numbers "
+                "(across, along[, down])"
             )
 
     @classmethod
@@ -481,8 +485,8 @@ class OnlineFilter:
             self._last = self._lose(self._describe(t, float("nan"), False), t)
         return self.estimate()
 
-    def measure(self, t: float, beams, noise_var=None) -> Estimate:
-        """A ping: ``beams`` ``(b, 3)`` rows ``(across_m, along_m, value)``.
+    def measure(self, t: float, beams, noise_var=None, roll=None, pitch=None) -> Estimate:
+        """A ping: rows ``(across_m, along_m, value)`` or ``(across_m, along_m, down_m, value)``.
 
         Values may be NaN (missing beam); offsets must be finite. The ping is placed with
         the last navigation record, which must be within ``max_pose_gap_s``.
@@ -492,15 +496,23 @@ class OnlineFilter:
         t : float
             Ping time, seconds (not before the previous input).
         beams : array_like
-            ``(b, 3)`` across / along offsets (metres) and measured values (map units).
+            ``(b, 3)``: level-frame across / along footprint offsets (metres, as a sonar
+            that corrects for attitude reports them) and measured values (map units);
+            ``(b, 4)``: body-frame beam vectors ``(across, along, down)`` from the sensor
+            (metres), levelled by ``roll`` and ``pitch``, and the values.
         noise_var : float or array_like, optional
             Measurement variance, map units squared, scalar or ``(b,)``; default
             ``noise_std^2``. The map's per-cell error variance is added to it.
+        roll, pitch : float, optional
+            Vehicle attitude at the ping, radians (roll positive starboard down, pitch
+            positive bow up; :mod:`geofix.conventions`); None is 0 for body-frame beams.
+            They level the body-frame beams and the mounting offset.
 
         Raises
         ------
         InputError
-            Before :meth:`init`, out of order, far from the last pose, or malformed beams.
+            Before :meth:`init`, out of order, far from the last pose, malformed beams,
+            or a roll / pitch not finite or beyond +-90 degrees.
         """
         t_pose, position, heading = self._require_started()
         t = _finite(t, "t")
@@ -513,9 +525,7 @@ class OnlineFilter:
                 f"(at most {gap:g} s)"
             )
         beams = self._beams(beams)
-        offsets, values = beams[:, :2], beams[:, 2]
-        if any(self.settings.mount_offset_m):
-            offsets = offsets + np.asarray(self.settings.mount_offset_m, dtype=float)
+        offsets, values = self._level(beams, roll, pitch)
         var = self._noise_var(noise_var, values.shape[0])
         offsets, values, var = self._thin(offsets, values, var)
         if self.map_error is not None:
@@ -626,18 +636,35 @@ class OnlineFilter:
                 f"(need {share_needed:.0%})"
             )
 
+    def _level(self, beams: np.ndarray, roll, pitch) -> tuple[np.ndarray, np.ndarray]:
+        """``(offsets (b, 2), values (b,))``: level footprint offsets and the readings."""
+        values = beams[:, -1]
+        mount = np.asarray(self.settings.mount_offset_m, dtype=float)
+        if beams.shape[1] == 3 and roll is None and pitch is None:
+            return (beams[:, :2] + mount[:2] if mount.any() else beams[:, :2]), values
+        attitude = []
+        for name, angle in (("roll", roll), ("pitch", pitch)):
+            angle = 0.0 if angle is None else _finite(angle, name)
+            if abs(angle) >= 0.5 * np.pi:
+                raise InputError(f"ping: {name} must be within +-90 degrees, got {angle:g} rad")
+            attitude.append(angle)
+        if beams.shape[1] == 4:
+            return level_offsets(beams[:, :3], *attitude, mount)[:, :2], values
+        lever = level_offsets(np.zeros((1, 3)), *attitude, mount)[0, :2]
+        return beams[:, :2] + lever, values
+
     def _beams(self, beams) -> np.ndarray:
         try:
             arr = np.asarray(beams, dtype=float)
         except (TypeError, ValueError):
             raise InputError("ping: beams must be a list of [across_m, along_m, value]") from None
-        if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] < 1:
-            raise InputError(f"ping: beams must have shape (b, 3), got {arr.shape}")
+        if arr.ndim != 2 or arr.shape[1] not in (3, 4) or arr.shape[0] < 1:
+            raise InputError(f"ping: beams must have shape (b, 3) or (b, 4), got {arr.shape}")
         if arr.shape[0] > self.settings.max_beams:
             raise InputError(
                 f"ping: {arr.shape[0]} beams, more than max_beams = {self.settings.max_beams}"
             )
-        if not np.isfinite(arr[:, :2]).all() or np.isinf(arr[:, 2]).any():
+        if not np.isfinite(arr[:, :-1]).all() or np.isinf(arr[:, -1]).any():
             raise InputError("ping: beam offsets must be finite and values finite or NaN")
         return arr
 
