@@ -269,7 +269,7 @@ class Mpf(RecursiveFilter):
             if self.discretisation_noise and state.spacing > 0:
                 view = PfState(positions, state.log_weight, state.cell, spacing=state.spacing)
                 var = var + spread_field_variance(grid, view, obs, rng)
-            log_weight = log_weight + log_likelihood(predicted, obs.values, var)
+            log_weight = log_weight + log_likelihood(predicted, obs.values, var, obs.bias_var)
             evaluations += positions.shape[0]
         return replace(
             state, log_weight=log_weight - logsumexp(log_weight), evaluations=evaluations

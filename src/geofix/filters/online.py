@@ -48,7 +48,11 @@ from geofix.errors import ConfigError, InputError, MatchError
 from geofix.filters.base import Motion, Observation
 from geofix.filters.convergence import posterior_kl
 from geofix.maps.grid import Grid
-from geofix.measurement import map_error_variance, predict_measurements
+from geofix.measurement import (
+    common_bias_posterior,
+    map_error_variance,
+    predict_measurements,
+)
 from geofix.problem import MatchProblem
 from geofix.sensors.attitude import level_offsets
 
@@ -101,6 +105,18 @@ class NavigatorSettings:
         Largest speed implied by two navigation records, m/s.
     max_beams : int
         Most beams a ping may carry.
+    depth_bias_std : float
+        Prior 1-sigma of an unknown offset common to every beam of a ping (tide, sound
+        speed, map datum), map units; 0 (default): no offset. When positive, a bias
+        state ``N(b, P)`` starts at ``N(0, depth_bias_std^2)``; every ping's values are
+        taken relative to ``b`` and each hypothesis's likelihood is marginalised over
+        the offset in closed form (:func:`geofix.measurement.common_bias_log_likelihood`);
+        on a converged ping the state is updated from the residuals at the estimate
+        (:func:`geofix.measurement.common_bias_posterior`). The estimate reports ``b``.
+        Filters without hypotheses (``sitan``) ignore it.
+    depth_bias_walk : float
+        Variance the bias state gains per second, map units squared per second
+        (default 1e-3: about 1 m over 15 minutes, a tide's rate).
     mount_offset_m : tuple of float
         The sensor's mounting offset from the navigation reference point, ``(across,
         along)`` or ``(across, along, down)`` metres in the body frame (starboard,
@@ -126,6 +142,8 @@ class NavigatorSettings:
     max_pose_gap_s: float | None = 5.0
     max_speed_m_s: float | None = 30.0
     max_beams: int = 4096
+    depth_bias_std: float = 0.0
+    depth_bias_walk: float = 1e-3
     mount_offset_m: tuple[float, ...] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
@@ -150,6 +168,10 @@ class NavigatorSettings:
                 raise ConfigError(f"navigator: {name} must be positive or None, got {value}")
         if self.nis_window < 0 or self.process_noise_m2_s < 0:
             raise ConfigError("navigator: nis_window and process_noise_m2_s must be >= 0")
+        for name in ("depth_bias_std", "depth_bias_walk"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ConfigError(f"navigator: {name} must be finite and >= 0, got {value}")
         if not 0.0 <= self.min_start_share <= 1.0:
             raise ConfigError("navigator: min_start_share must be in [0, 1]")
         mount = np.asarray(self.mount_offset_m, dtype=float)
@@ -212,8 +234,11 @@ class Estimate:
     pings, rejected, reinits : int
         Pings seen, pings gated out, re-initialisations so far.
     kl_nats : float
-        KL divergence of the posterior to its Gaussian, nats (NaN: not computed, or a
-        filter without weighted points).
+        KL divergence of the posterior to its Gaussian, nats (NaN: not computed -- the
+        spread or MLE test failed first -- or a filter without weighted points).
+    depth_bias, depth_bias_std : float
+        The common-offset state's mean and 1-sigma, map units (measured minus map; NaN
+        when ``depth_bias_std`` is 0).
     """
 
     t: float
@@ -227,6 +252,8 @@ class Estimate:
     rejected: int = 0
     reinits: int = 0
     kl_nats: float = float("nan")
+    depth_bias: float = float("nan")
+    depth_bias_std: float = float("nan")
 
     @property
     def sigma_m(self) -> float:
@@ -237,7 +264,8 @@ class Estimate:
         """JSON-ready mapping of the estimate.
 
         Keys ``t, x, y, cov, status, mle, nis, accepted, pings, rejected, reinits,
-        kl_nats`` (``nis`` and ``kl_nats`` null when not computed).
+        kl_nats, depth_bias`` (``nis``, ``kl_nats``, ``depth_bias`` null when not
+        computed).
         """
         return {
             "t": float(self.t),
@@ -252,6 +280,7 @@ class Estimate:
             "rejected": int(self.rejected),
             "reinits": int(self.reinits),
             "kl_nats": None if not np.isfinite(self.kl_nats) else float(self.kl_nats),
+            "depth_bias": None if not np.isfinite(self.depth_bias) else float(self.depth_bias),
         }
 
 
@@ -307,7 +336,10 @@ def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
 
     The predicted reading and its spread over the posterior come from the five
     unscented sigma points ``mean``, ``mean +- sqrt(3) L_i`` (``L L^T = cov``, weights
-    1/3 and 1/6): ``mean_b (y_b - yhat_b)^2 / (R_b + S_b)``.
+    1/3 and 1/6): ``mean_b (y_b - yhat_b)^2 / (R_b + S_b)``. With a common-offset
+    variance ``obs.bias_var = P`` the residual's covariance is ``diag(v) + P 1 1^T``
+    (``v_b = R_b + S_b``) and the NIS is its quadratic form per beam,
+    ``(sum r^2 / v - P T^2 / (1 + P S)) / b`` (``S = sum 1 / v``, ``T = sum r / v``).
     """
     cov = 0.5 * (cov + cov.T) + 1e-9 * np.eye(2)
     try:
@@ -325,7 +357,12 @@ def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
     yhat = weights @ p
     s = weights @ (p - yhat) ** 2
     r = np.broadcast_to(np.asarray(obs.noise_var, dtype=float), obs.values.shape)[use]
-    return float(np.mean((obs.values[use] - yhat) ** 2 / (r + s)))
+    residual, var = obs.values[use] - yhat, r + s
+    quad = float(np.sum(residual**2 / var))
+    if obs.bias_var > 0:
+        t, total = float(np.sum(residual / var)), float(np.sum(1.0 / var))
+        quad -= obs.bias_var * t * t / (1.0 + obs.bias_var * total)
+    return quad / residual.size
 
 
 class OnlineFilter:
@@ -369,6 +406,20 @@ class OnlineFilter:
         self._good_offset = np.zeros(2)
         self._pings = self._rejected = self._reinits = self._accepted_count = 0
         self._last: Estimate | None = None
+        self._reset_bias(0.0)
+
+    def _reset_bias(self, t: float) -> None:
+        """The common-offset state back at its prior ``N(0, depth_bias_std^2)``."""
+        self._bias = 0.0
+        self._bias_var = self.settings.depth_bias_std**2
+        self._t_bias = float(t)
+
+    def _bias_update(self, obs: Observation, mean: np.ndarray) -> None:
+        """Fold a converged ping's residuals at the estimate into the bias state."""
+        predicted = predict_measurements(self.grid, mean, obs.heading, obs.offsets)
+        shift, var = common_bias_posterior(obs.values - predicted, obs.noise_var, obs.bias_var)
+        self._bias += shift
+        self._bias_var = var
 
     # ------------------------------------------------------------------ the two steps
     def start(self, problem: MatchProblem) -> None:
@@ -410,6 +461,9 @@ class OnlineFilter:
         estimate = self._describe(t, nis, accepted)
         if estimate.status == "converged":
             self._good_offset = estimate.position - pose[1]
+            if accepted and obs.bias_var > 0:
+                self._bias_update(obs, estimate.position)
+                estimate = Estimate(**{**_fields(estimate), **self._bias_fields()})
         reason = self._lost_reason(estimate, t)
         if reason is not None:
             estimate = self._lose(estimate, t)
@@ -446,6 +500,7 @@ class OnlineFilter:
         self._nis.clear()
         self._pings = self._rejected = self._reinits = self._accepted_count = 0
         self._last = None
+        self._reset_bias(t)
         return self.estimate()
 
     def motion(self, t: float, position, heading: float, process_var: float | None = None):
@@ -531,7 +586,12 @@ class OnlineFilter:
         if self.map_error is not None:
             mean, _ = self.filter.estimate(self.state)
             var = var + map_error_variance(self.map_error, mean, heading, offsets)
-        obs = Observation(values, position, heading, offsets, var, self._pings)
+        bias_var = 0.0
+        if self.settings.depth_bias_std > 0:
+            self._bias_var += self.settings.depth_bias_walk * max(t - self._t_bias, 0.0)
+            self._t_bias = t
+            values, bias_var = values - self._bias, self._bias_var
+        obs = Observation(values, position, heading, offsets, var, self._pings, bias_var)
         self._t_last = t
         return self.update(obs, t)
 
@@ -568,7 +628,13 @@ class OnlineFilter:
             rejected=self._rejected,
             reinits=self._reinits,
             kl_nats=kl,
+            **self._bias_fields(),
         )
+
+    def _bias_fields(self) -> dict:
+        if self.settings.depth_bias_std <= 0:
+            return {}
+        return {"depth_bias": self._bias, "depth_bias_std": float(np.sqrt(self._bias_var))}
 
     def _converged(self, mean, cov, mle) -> bool:
         cell = self.grid.cell_size
@@ -610,6 +676,7 @@ class OnlineFilter:
         except MatchError:
             return lost  # the restart box is off the map: keep the old posterior, stay lost
         self._reinits += 1
+        self._reset_bias(t)
         self._accepted_count = 0
         self._t_accepted = t
         self._nis.clear()

@@ -273,7 +273,9 @@ class Pmf(RecursiveFilter):
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         if self.discretisation_noise:
             var = var + node_field_variance(predicted, obs.values)
-        log_weight = ops.normalise(state.log_weight + log_likelihood(predicted, obs.values, var))
+        log_weight = ops.normalise(
+            state.log_weight + log_likelihood(predicted, obs.values, var, obs.bias_var)
+        )
         return replace(state, log_weight=log_weight, evaluations=state.evaluations + xy.size // 2)
 
     def estimate(self, state: PmfState) -> tuple[np.ndarray, np.ndarray]:
