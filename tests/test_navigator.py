@@ -217,3 +217,13 @@ def test_body_frame_beams_with_roll_and_pitch_are_the_levelled_beams(synthetic_g
         a.measure(t[-1], body_pings[-1], roll=2.0)
     with pytest.raises(InputError, match="pitch must be finite"):
         a.measure(t[-1], body_pings[-1], pitch=float("nan"))
+
+
+def test_a_bicubic_navigator_reads_the_map_bicubic_and_converges(synthetic_grid, rng):
+    t, truth, beams = pings(synthetic_grid, rng, n=15)
+    nav = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3, "interpolation": "bicubic"})
+    assert nav.grid.interpolation == "bicubic" and synthetic_grid.interpolation == "bilinear"
+    ests = run(nav, t, truth + 25.0, beams)
+    assert ests[-1].status == "converged" and np.hypot(*(ests[-1].position - truth[-1])) < 5.0
+    with pytest.raises(ConfigError, match="interpolation"):
+        Navigator(synthetic_grid, "pmf", {"interpolation": "spline"})

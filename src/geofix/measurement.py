@@ -25,7 +25,7 @@ import numpy as np
 
 from geofix._measurement_kernels import gaussian_log_likelihood
 from geofix.maps.grid import Grid
-from geofix.maps.mapread import bilinear_beams
+from geofix.maps.mapread import read_beams
 from geofix.maps.terrain import gradient, plane_fit
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import footprint_xy
@@ -52,9 +52,10 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
     Returns
     -------
     numpy.ndarray
-        ``(..., b)`` predicted values; NaN off the map and wherever a cell of the bilinear
+        ``(..., b)`` predicted values; NaN off the map and wherever a cell of the
         stencil is NaN (as :meth:`Grid.sample`): the compiled read of
-        :mod:`geofix.maps.mapread`, beam offsets added in cells.
+        :mod:`geofix.maps.mapread` the grid's ``interpolation`` names (bilinear unless
+        set), beam offsets added in cells.
     """
     positions = np.asarray(positions, dtype=float)
     offsets = np.asarray(offsets, dtype=float)
@@ -66,7 +67,7 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
         f"map prediction of {hypotheses} hypotheses x {offsets.shape[0]} beams",
     )
     col, row = grid.xy_to_cell(positions[..., 0].ravel(), positions[..., 1].ravel())
-    out = bilinear_beams(grid.values, col, row, ox / grid.dx, oy / grid.dy)
+    out = read_beams(grid.values, col, row, ox / grid.dx, oy / grid.dy, grid.interpolation)
     return out.reshape(*positions.shape[:-1], offsets.shape[0])
 
 

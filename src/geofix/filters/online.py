@@ -105,6 +105,9 @@ class NavigatorSettings:
         Largest speed implied by two navigation records, m/s.
     max_beams : int
         Most beams a ping may carry.
+    interpolation : {"bilinear", "bicubic"}
+        The map read of the measurement model (:mod:`geofix.maps.mapread`): bilinear
+        (default) or Keys bicubic (smoother, exact for quadratic terrain; same NaN rules).
     depth_bias_std : float
         Prior 1-sigma of an unknown offset common to every beam of a ping (tide, sound
         speed, map datum), map units; 0 (default): no offset. When positive, a bias
@@ -142,6 +145,7 @@ class NavigatorSettings:
     max_pose_gap_s: float | None = 5.0
     max_speed_m_s: float | None = 30.0
     max_beams: int = 4096
+    interpolation: str = "bilinear"
     depth_bias_std: float = 0.0
     depth_bias_walk: float = 1e-3
     mount_offset_m: tuple[float, ...] = (0.0, 0.0)
@@ -168,6 +172,10 @@ class NavigatorSettings:
                 raise ConfigError(f"navigator: {name} must be positive or None, got {value}")
         if self.nis_window < 0 or self.process_noise_m2_s < 0:
             raise ConfigError("navigator: nis_window and process_noise_m2_s must be >= 0")
+        if self.interpolation not in ("bilinear", "bicubic"):
+            raise ConfigError(
+                f"navigator: interpolation must be bilinear or bicubic, got {self.interpolation!r}"
+            )
         for name in ("depth_bias_std", "depth_bias_walk"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
@@ -392,8 +400,10 @@ class OnlineFilter:
         self, filt, grid: Grid, settings=None, rng=None, map_error=None, ins_model=None
     ) -> None:
         self.filter = filt
-        self.grid = grid
         self.settings = settings or NavigatorSettings()
+        if grid.interpolation != self.settings.interpolation:
+            grid = replace(grid, interpolation=self.settings.interpolation)
+        self.grid = grid
         self.rng = rng
         self.map_error = map_error
         self.ins_model = ins_model
