@@ -227,3 +227,36 @@ def test_a_bicubic_navigator_reads_the_map_bicubic_and_converges(synthetic_grid,
     assert ests[-1].status == "converged" and np.hypot(*(ests[-1].position - truth[-1])) < 5.0
     with pytest.raises(ConfigError, match="interpolation"):
         Navigator(synthetic_grid, "pmf", {"interpolation": "spline"})
+
+
+def test_min_beams_default_takes_single_beam_pings_and_gates_multibeam_ones(synthetic_grid, rng):
+    assert NavigatorSettings().min_beams is None
+    heading, n = np.pi / 4, 60
+    t = np.arange(n) * 1.0
+    truth = np.array([300.0, 250.0]) + t[:, None] * 8.0 * np.array(
+        [np.sin(heading), np.cos(heading)]
+    )
+    nav = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3}, seed=5)
+    nav.init(t[0], truth[0] + (20.0, -15.0), 25.0, heading)
+    for k in range(n):
+        if k:
+            nav.motion(t[k], truth[k] + (20.0, -15.0), heading)
+        value = synthetic_grid.sample(*truth[k]) + 0.3 * rng.standard_normal()
+        est = nav.measure(t[k], [[0.0, 0.0, value]])
+        assert est.accepted or est.rejected  # a one-beam ping is used (or NIS-gated)
+    assert est.rejected < n // 4 and np.hypot(*(est.position - truth[-1])) < 15.0
+    # a multibeam ping still needs three valid beams
+    beams = np.column_stack([OFFSETS, np.full(ACROSS.size, np.nan)])
+    beams[:2, 2] = synthetic_grid.sample(*footprint_xy(truth[-1], np.asarray(heading), OFFSETS[:2]))
+    assert not nav.measure(t[-1], beams).accepted
+    beams[2, 2] = synthetic_grid.sample(
+        *footprint_xy(truth[-1], np.asarray(heading), OFFSETS[2:3])
+    )[0]
+    assert nav.measure(t[-1], beams).accepted
+    # an explicit setting still rules: min_beams=2 takes the two-beam ping
+    explicit = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3, "min_beams": 2}, seed=5)
+    explicit.init(t[-1], truth[-1], 25.0, heading)
+    beams[2, 2] = np.nan
+    assert explicit.measure(t[-1], beams).accepted
+    with pytest.raises(ConfigError, match="min_beams"):
+        Navigator(synthetic_grid, "pmf", {"min_beams": 0})

@@ -82,8 +82,10 @@ class NavigatorSettings:
         Lost when the posterior's largest 1-sigma exceeds this times the prior sigma.
     reinit : bool
         Re-initialise when lost (False: only report ``lost``).
-    min_beams : int
-        A ping with fewer valid beams is not used (it counts towards an outage).
+    min_beams : int or None
+        A ping with fewer valid beams is not used (it counts towards an outage). None
+        (default): 1 for a ping of one beam (a single-beam echosounder, a gravimeter),
+        3 for a ping of several (a multibeam ping needs three valid beams).
     max_update_beams : int or None
         Use at most this many valid beams of a ping, evenly spread across the swath
         (None: all of them).
@@ -136,7 +138,7 @@ class NavigatorSettings:
     outage_s: float | None = 120.0
     max_sigma_factor: float | None = 3.0
     reinit: bool = True
-    min_beams: int = 3
+    min_beams: int | None = None
     max_update_beams: int | None = 64
     converge_sigma_m: float | None = None
     converge_mle_m: float | None = None
@@ -151,10 +153,14 @@ class NavigatorSettings:
     mount_offset_m: tuple[float, ...] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
-        positive = ("noise_std", "nis_limit", "max_beams", "min_beams")
+        positive = ("noise_std", "nis_limit", "max_beams")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"navigator: {name} must be positive, got {getattr(self, name)}")
+        if self.min_beams is not None and not self.min_beams > 0:
+            raise ConfigError(
+                f"navigator: min_beams must be positive or None, got {self.min_beams}"
+            )
         optional = (
             "gate_nis",
             "outage_s",
@@ -418,6 +424,12 @@ class OnlineFilter:
         self._last: Estimate | None = None
         self._reset_bias(0.0)
 
+    def _min_beams(self, obs: Observation) -> int:
+        """Valid beams a ping needs: the setting, or 1 for a one-beam ping and 3 otherwise."""
+        if self.settings.min_beams is not None:
+            return int(self.settings.min_beams)
+        return 1 if obs.values.size == 1 else 3
+
     def _reset_bias(self, t: float) -> None:
         """The common-offset state back at its prior ``N(0, depth_bias_std^2)``."""
         self._bias = 0.0
@@ -454,7 +466,7 @@ class OnlineFilter:
         self._pings += 1
         s = self.settings
         nis = float("nan")
-        accepted = int(np.isfinite(obs.values).sum()) >= s.min_beams
+        accepted = int(np.isfinite(obs.values).sum()) >= self._min_beams(obs)
         if accepted and (s.gate_nis is not None or s.nis_window > 0):
             mean, cov = self.filter.estimate(self.state)
             nis = innovation_nis(self.grid, mean, cov, obs)
