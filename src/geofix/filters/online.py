@@ -46,7 +46,7 @@ import numpy as np
 
 from geofix.errors import ConfigError, InputError, MatchError
 from geofix.filters.base import Motion, Observation
-from geofix.filters.convergence import posterior_kl
+from geofix.filters.convergence import posterior_kl, posterior_points
 from geofix.maps.grid import Grid
 from geofix.measurement import (
     common_bias_posterior,
@@ -118,7 +118,8 @@ class NavigatorSettings:
         the offset in closed form (:func:`geofix.measurement.common_bias_log_likelihood`);
         on a converged ping the state is updated from the residuals at the estimate
         (:func:`geofix.measurement.common_bias_posterior`). The estimate reports ``b``.
-        Filters without hypotheses (``sitan``) ignore it.
+        Only a grid or particle filter takes it (an EKF such as ``sitan`` carries its
+        own field bias): for the others the setting is ignored.
     depth_bias_walk : float
         Variance the bias state gains per second, map units squared per second
         (default 1e-3: about 1 m over 15 minutes, a tide's rate).
@@ -609,7 +610,7 @@ class OnlineFilter:
             mean, _ = self.filter.estimate(self.state)
             var = var + map_error_variance(self.map_error, mean, heading, offsets)
         bias_var = 0.0
-        if self.settings.depth_bias_std > 0:
+        if self.settings.depth_bias_std > 0 and posterior_points(self.state) is not None:
             self._bias_var += self.settings.depth_bias_walk * max(t - self._t_bias, 0.0)
             self._t_bias = t
             values, bias_var = values - self._bias, self._bias_var
