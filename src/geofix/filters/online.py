@@ -346,6 +346,25 @@ def mode_position(filt, state) -> np.ndarray:
     return np.asarray(filt.estimate(state)[0], dtype=float)
 
 
+def unscented_points(mean, cov) -> tuple[np.ndarray, np.ndarray]:
+    """The five sigma points ``mean``, ``mean +- sqrt(3) L_i`` (``L L^T = cov``) and weights.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(5, 2)`` points (metres) and ``(5,)`` weights ``1/3, 1/6, 1/6, 1/6, 1/6``.
+    """
+    mean = np.asarray(mean, dtype=float)
+    cov = 0.5 * (cov + cov.T) + 1e-9 * np.eye(2)
+    try:
+        chol = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        chol = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * np.eye(2)
+    spread = np.sqrt(3.0) * chol.T
+    points = np.vstack([mean, mean + spread, mean - spread])
+    return points, np.array([1 / 3, 1 / 6, 1 / 6, 1 / 6, 1 / 6])
+
+
 def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
     """Per-beam NIS of ``obs`` against the posterior ``N(mean, cov)`` (NaN if no beam).
 
@@ -356,14 +375,7 @@ def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
     (``v_b = R_b + S_b``) and the NIS is its quadratic form per beam,
     ``(sum r^2 / v - P T^2 / (1 + P S)) / b`` (``S = sum 1 / v``, ``T = sum r / v``).
     """
-    cov = 0.5 * (cov + cov.T) + 1e-9 * np.eye(2)
-    try:
-        chol = np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        chol = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * np.eye(2)
-    spread = np.sqrt(3.0) * chol.T
-    points = np.vstack([mean, mean + spread, mean - spread])
-    weights = np.array([1 / 3, 1 / 6, 1 / 6, 1 / 6, 1 / 6])
+    points, weights = unscented_points(mean, cov)
     pred = predict_measurements(grid, points, obs.heading, obs.offsets)
     use = np.isfinite(obs.values) & np.isfinite(pred).all(axis=0)
     if not use.any():
@@ -437,12 +449,29 @@ class OnlineFilter:
         self._bias_var = self.settings.depth_bias_std**2
         self._t_bias = float(t)
 
-    def _bias_update(self, obs: Observation, mean: np.ndarray) -> None:
-        """Fold a converged ping's residuals at the estimate into the bias state."""
-        predicted = predict_measurements(self.grid, mean, obs.heading, obs.offsets)
-        shift, var = common_bias_posterior(obs.values - predicted, obs.noise_var, obs.bias_var)
+    def _bias_update(self, obs: Observation, mean: np.ndarray, cov: np.ndarray) -> None:
+        """Fold a converged ping's residuals into the bias state.
+
+        The offset's posterior given the ping is taken at the five sigma points of the
+        position posterior (:func:`unscented_points`): its mean is their weighted mean and
+        its variance the posterior variance plus their weighted spread, so an uncertain
+        position (on a slope) leaves the offset uncertain too.
+        """
+        points, weights = unscented_points(mean, cov)
+        predicted = predict_measurements(self.grid, points, obs.heading, obs.offsets)
+        valid = np.isfinite(predicted).all(axis=0)
+        if not (valid & np.isfinite(obs.values)).any():
+            return
+        values = np.where(valid, obs.values, np.nan)
+        shifts = np.empty(points.shape[0])
+        var = 0.0
+        for i in range(points.shape[0]):
+            shifts[i], var = common_bias_posterior(
+                values - predicted[i], obs.noise_var, obs.bias_var
+            )
+        shift = float(weights @ shifts)
         self._bias += shift
-        self._bias_var = var
+        self._bias_var = var + float(weights @ (shifts - shift) ** 2)
 
     # ------------------------------------------------------------------ the two steps
     def start(self, problem: MatchProblem) -> None:
@@ -485,7 +514,7 @@ class OnlineFilter:
         if estimate.status == "converged":
             self._good_offset = estimate.position - pose[1]
             if accepted and obs.bias_var > 0:
-                self._bias_update(obs, estimate.position)
+                self._bias_update(obs, estimate.position, estimate.covariance)
                 estimate = Estimate(**{**_fields(estimate), **self._bias_fields()})
         reason = self._lost_reason(estimate, t)
         if reason is not None:
@@ -808,4 +837,5 @@ __all__ = [
     "innovation_nis",
     "mode_position",
     "start_problem",
+    "unscented_points",
 ]
