@@ -198,8 +198,12 @@ class NavigatorSettings:
 
     @classmethod
     def passive(cls) -> NavigatorSettings:
-        """No gating, no re-initialisation, no input limits: a campaign trial's filter."""
+        """No gating, no re-initialisation, no input limits: a campaign trial's filter.
+
+        Nothing reads a trial's status, so the KL term is off too (it costs a binning).
+        """
         return cls(
+            converge_kl_nats=None,
             gate_nis=None,
             nis_window=0,
             outage_s=None,
