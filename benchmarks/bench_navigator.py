@@ -13,7 +13,7 @@ socket), i.e. the work the server adds without the operating system's thread wak
 which dominate the round trip on a loaded machine. A yardstick (a 300 x 300
 matrix product, timed in the same run) shows how loaded the machine was.
 
-Usage: ``python benchmarks/bench_navigator.py [--methods pmf pf sitan] [--json]``
+Usage: ``python benchmarks/bench_navigator.py [--methods pmf mpf pf sitan] [--json]``
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ def yardstick_ms(repeat: int = 20) -> float:
 def update_times(grid, error, mission, inputs, method: str, beams) -> list[float]:
     """Seconds of every ``measure`` made while the navigator was converged."""
     settings = NavigatorSettings(noise_std=NOISE_STD, max_update_beams=beams)
-    nav = Navigator(grid, method, settings, seed=SEED, map_error=error)
+    nav = Navigator(grid, method, settings, SEED, error, ins_model=inputs.ins_model)
     nav.init(mission.times[0], inputs.indicated[0], inputs.sigma[0], inputs.heading[0])
     out = []
     for k in range(mission.n):
@@ -85,12 +85,13 @@ def round_trip_times(grid, error, mission, inputs, method: str) -> tuple[list, l
     from geofix.server import Session, serve_in_thread
 
     settings = NavigatorSettings(noise_std=NOISE_STD)
-    offline = Navigator(grid, method, settings, seed=SEED, map_error=error)
-    session = Session(grid, method, settings, seed=SEED, map_error=error)
+    model = inputs.ins_model
+    offline = Navigator(grid, method, settings, SEED, error, ins_model=model)
+    session = Session(grid, method, settings, SEED, error, ins_model=model)
     deg = np.rad2deg(inputs.heading)
     rad = np.deg2rad(deg)
     rtt, local, handled = [], [], []
-    server = serve_in_thread(grid, method, settings=settings, seed=SEED, map_error=error)
+    server = serve_in_thread(grid, method, "127.0.0.1", settings, SEED, error, model)
     with server as addr, Client(*addr) as client:
         client.init(mission.times[0], *inputs.indicated[0], inputs.sigma[0], deg[0])
         offline.init(mission.times[0], inputs.indicated[0], inputs.sigma[0], rad[0])
@@ -157,7 +158,7 @@ def run(methods: list[str]) -> dict:
 def main() -> None:
     """Command-line entry point."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--methods", nargs="*", default=["pmf", "pf", "sitan"])
+    parser.add_argument("--methods", nargs="*", default=["pmf", "mpf", "pf", "sitan"])
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     args = parser.parse_args()
     result = run(args.methods)

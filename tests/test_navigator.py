@@ -167,3 +167,96 @@ def test_a_mounting_offset_moves_every_beam_by_it(synthetic_grid, rng):
     assert np.hypot(*(right[-1].position - truth[-1])) < 2.0
     # without it the fix absorbs the 14 m lever arm
     assert np.hypot(*(wrong[-1].position - truth[-1])) > 8.0
+
+
+def test_attitude_levels_a_nadir_beam_by_the_known_angle():
+    from geofix.sensors.attitude import level_offsets
+
+    roll = pitch = np.radians(10.0)
+    slant = 100.0 / np.cos(roll)  # a nadir beam that meets the bottom 100 m down
+    rolled = level_offsets([[0.0, 0.0, slant]], roll=roll)[0]
+    np.testing.assert_allclose(rolled, [-100.0 * np.tan(roll), 0.0, 100.0], atol=1e-12)
+    pitched = level_offsets([[0.0, 0.0, slant]], pitch=pitch)[0]
+    np.testing.assert_allclose(pitched, [0.0, 100.0 * np.tan(pitch), 100.0], atol=1e-12)
+    # a sensor 2 m below the reference point moves 2 sin(30 deg) = 1 m to port
+    lever = level_offsets([[0.0, 0.0, 0.0]], roll=np.radians(30.0), mount=(0.0, 0.0, 2.0))[0]
+    np.testing.assert_allclose(lever[:2], [-1.0, 0.0], atol=1e-12)
+    # an attitude-free beam is unchanged
+    np.testing.assert_allclose(level_offsets([[40.0, -5.0, 90.0]])[0], [40.0, -5.0, 90.0])
+
+
+def test_body_frame_beams_with_roll_and_pitch_are_the_levelled_beams(synthetic_grid, rng):
+    """(b, 4) body beams + attitude give the estimates of the same beams levelled by hand."""
+    from geofix.sensors.attitude import level_offsets
+
+    t, truth, _ = pings(synthetic_grid, rng, n=12)
+    roll = np.radians(8.0) * np.sin(0.5 * t)
+    pitch = np.radians(-3.0) * np.cos(0.3 * t)
+    mount = (1.0, 2.0, 3.0)
+    body_pings, flat_pings = [], []
+    for k in range(t.size):
+        body = np.column_stack([OFFSETS, np.full(ACROSS.size, 80.0)])
+        level = level_offsets(body, roll[k], pitch[k], mount)
+        values = synthetic_grid.sample(*footprint_xy(truth[k], np.asarray(np.pi / 4), level[:, :2]))
+        body_pings.append(np.column_stack([body, values]))
+        flat_pings.append(np.column_stack([level[:, :2], values]))
+        assert abs(level[ACROSS.size // 2, 0] - (1.0 - 83.0 * np.sin(roll[k]))) < 3.0
+    a = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3, "mount_offset_m": mount}, seed=2)
+    b = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3}, seed=2)
+    for nav in (a, b):
+        nav.init(t[0], truth[0] + 20.0, 40.0, np.pi / 4)
+    for k in range(t.size):
+        if k:
+            a.motion(t[k], truth[k] + 20.0, np.pi / 4)
+            b.motion(t[k], truth[k] + 20.0, np.pi / 4)
+        ea = a.measure(t[k], body_pings[k], roll=roll[k], pitch=pitch[k])
+        eb = b.measure(t[k], flat_pings[k])
+        np.testing.assert_allclose(ea.position, eb.position, atol=1e-6)
+    assert np.hypot(*(ea.position - truth[-1])) < 5.0
+    with pytest.raises(InputError, match="roll must be within"):
+        a.measure(t[-1], body_pings[-1], roll=2.0)
+    with pytest.raises(InputError, match="pitch must be finite"):
+        a.measure(t[-1], body_pings[-1], pitch=float("nan"))
+
+
+def test_a_bicubic_navigator_reads_the_map_bicubic_and_converges(synthetic_grid, rng):
+    t, truth, beams = pings(synthetic_grid, rng, n=15)
+    nav = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3, "interpolation": "bicubic"})
+    assert nav.grid.interpolation == "bicubic" and synthetic_grid.interpolation == "bilinear"
+    ests = run(nav, t, truth + 25.0, beams)
+    assert ests[-1].status == "converged" and np.hypot(*(ests[-1].position - truth[-1])) < 5.0
+    with pytest.raises(ConfigError, match="interpolation"):
+        Navigator(synthetic_grid, "pmf", {"interpolation": "spline"})
+
+
+def test_min_beams_default_takes_single_beam_pings_and_gates_multibeam_ones(synthetic_grid, rng):
+    assert NavigatorSettings().min_beams is None
+    heading, n = np.pi / 4, 60
+    t = np.arange(n) * 1.0
+    truth = np.array([300.0, 250.0]) + t[:, None] * 8.0 * np.array(
+        [np.sin(heading), np.cos(heading)]
+    )
+    nav = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3}, seed=5)
+    nav.init(t[0], truth[0] + (20.0, -15.0), 25.0, heading)
+    for k in range(n):
+        if k:
+            nav.motion(t[k], truth[k] + (20.0, -15.0), heading)
+        value = synthetic_grid.sample(*truth[k]) + 0.3 * rng.standard_normal()
+        est = nav.measure(t[k], [[0.0, 0.0, value]])
+        assert est.accepted or est.rejected  # a one-beam ping is used (or NIS-gated)
+    assert est.rejected < n // 4 and np.hypot(*(est.position - truth[-1])) < 15.0
+    # a multibeam ping still needs three valid beams
+    beams = np.column_stack([OFFSETS, np.full(ACROSS.size, np.nan)])
+    beams[:2, 2] = synthetic_grid.sample(*footprint_xy(truth[-1], np.asarray(heading), OFFSETS[:2]))
+    assert not nav.measure(t[-1], beams).accepted
+    beams[2, 2] = synthetic_grid.sample(
+        *footprint_xy(truth[-1], np.asarray(heading), OFFSETS[2:3])
+    )[0]
+    assert nav.measure(t[-1], beams).accepted
+    # an explicit setting still rules: min_beams=2 takes the two-beam ping
+    explicit = Navigator(synthetic_grid, "pmf", {"noise_std": 0.3, "min_beams": 2}, seed=5)
+    explicit.init(t[-1], truth[-1], 25.0, heading)
+    beams[2, 2] = np.nan
+    assert explicit.measure(t[-1], beams).accepted
+    with pytest.raises(ConfigError, match="min_beams"):
+        Navigator(synthetic_grid, "pmf", {"min_beams": 0})

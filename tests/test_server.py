@@ -167,7 +167,7 @@ def test_ping_message_sends_missing_values_as_null_and_refuses_bad_offsets():
         "beams": [[-10.0, 0.5, 101.25], [0.0, 0.0, None], [10.0, -0.5, None]],
     }
     beams[0, 0] = np.nan
-    with pytest.raises(ValueError, match="offsets must be finite"):
+    with pytest.raises(ValueError, match="beam offsets must be finite"):
         ping_message(3.0, beams)
     with pytest.raises(ValueError, match=r"\(b, 3\)"):
         ping_message(3.0, np.zeros((4, 2)))
@@ -182,3 +182,41 @@ def test_requests_orjson_refuses_are_answered_as_the_standard_library_would():
     assert parse_request(b'{"type": "nav", "t": 123456789012345678901234567890}')["t"] > 1e29
     with pytest.raises(RequestError, match="not JSON"):
         parse_request(b'{"type": "nav",')
+
+
+def test_a_ping_of_body_frame_beams_with_attitude_is_levelled(synthetic_grid):
+    from geofix.sensors.attitude import level_offsets
+    from geofix.server import Session
+
+    body = np.column_stack([np.linspace(-100, 100, 9), np.zeros(9), np.full(9, 60.0)])
+    roll, pitch = np.radians(6.0), np.radians(-2.0)
+    level = level_offsets(body, roll, pitch)[:, :2]
+    values = synthetic_grid.sample(600.0 + level[:, 0], 500.0 + level[:, 1])
+    init = json.dumps({"type": "init", "t": 0, "x": 600.0, "y": 500.0, "sigma_m": 30.0})
+    four = [[*b, v] for b, v in zip(body.tolist(), values.tolist(), strict=True)]
+    three = [[*b, v] for b, v in zip(level.tolist(), values.tolist(), strict=True)]
+    ping4 = {"type": "ping", "t": 0, "beams": four, "roll_deg": 6.0, "pitch_deg": -2.0}
+    ping3 = {"type": "ping", "t": 0, "beams": three}
+    replies = []
+    for ping in (ping4, ping3):
+        session = Session(synthetic_grid, "pmf", seed=3)
+        session.handle(init.encode())
+        replies.append(session.handle(json.dumps(ping).encode()))
+    assert replies[0]["ok"] and replies[1]["ok"]
+    assert replies[0]["x"] == pytest.approx(replies[1]["x"], abs=1e-6)
+    assert replies[0]["y"] == pytest.approx(replies[1]["y"], abs=1e-6)
+    mixed = {"type": "ping", "t": 0, "beams": [four[0], three[1]]}
+    reply = session.handle(json.dumps(mixed).encode())
+    assert not reply["ok"] and "beam 1 must be" in reply["error"]
+
+
+def test_ping_message_carries_body_frame_beams_and_the_attitude():
+    from geofix.client import ping_message
+
+    beams = np.array([[-10.0, 0.0, 50.0, 101.0], [10.0, 0.0, 50.0, np.nan]])
+    message = ping_message(1.0, beams, roll_deg=5.0, pitch_deg=-1.0)
+    assert message["beams"] == [[-10.0, 0.0, 50.0, 101.0], [10.0, 0.0, 50.0, None]]
+    assert (message["roll_deg"], message["pitch_deg"]) == (5.0, -1.0)
+    assert "roll_deg" not in ping_message(1.0, beams)
+    with pytest.raises(ValueError, match="attitude"):
+        ping_message(1.0, beams, roll_deg=float("nan"))

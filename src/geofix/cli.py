@@ -476,13 +476,17 @@ def serve_command(
     ] = None,
     variable: Annotated[str | None, typer.Option(help="netCDF variable / band.")] = None,
     resample_m: Annotated[float | None, typer.Option(help="Cell size, metres.")] = None,
+    ins: Annotated[
+        Path | None, typer.Option(help="Scenario YAML whose ins: numbers are the INS model.")
+    ] = None,
 ) -> None:
     """Serve the navigator over TCP: newline-delimited JSON, one navigator per connection."""
 
     def go():
         from geofix.maps.gridding import load_map_error
         from geofix.maps.io import load_grid
-        from geofix.server import serve
+        from geofix.replay import load_ins_model
+        from geofix.server import Session, serve
 
         grid = load_grid(map_path, variable=variable, resample_m=resample_m)
         error = None if map_path.startswith("builtin:") else load_map_error(map_path)
@@ -491,8 +495,10 @@ def serve_command(
             settings["noise_std"] = noise_std
         if beams is not None:
             settings["max_update_beams"] = beams
+        ins_model = None if ins is None else load_ins_model(ins)
+        Session(grid, method, settings, seed, error, ins_model)  # refuse before "serving"
         _err.print(f"serving {grid!r} with {method} on {host}:{port} (Ctrl-C stops)")
-        serve(grid, method, host, port, settings, seed, error)
+        serve(grid, method, host, port, settings, seed, error, ins_model)
 
     try:
         _guarded(go)

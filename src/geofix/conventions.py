@@ -8,13 +8,20 @@ Frames
 - Grid indexing: ``values[row, col]``; row 0 is the *southern* edge, column 0 the western
   edge; the centre of cell ``[row, col]`` is ``(x0 + col * dx, y0 + row * dy)``.
 - Body frame of the vehicle (sensor footprint offsets): ``(across, along)`` in metres,
-  ``across`` positive to starboard, ``along`` positive forward.
+  ``across`` positive to starboard, ``along`` positive forward; a third component
+  ``down`` (positive down) where a vector is three-dimensional (a beam's vector from
+  the sensor, a mounting offset). Such vectors are levelled by the vehicle's roll and
+  pitch (:mod:`geofix.sensors.attitude`) before the heading turns them into ``(x, y)``.
 
 Angles
 ------
 - Heading: degrees clockwise from north at every interface a person touches (scenario
   files, CLI, settings ending in ``_deg``); radians inside the numerics.
 - A heading ``psi`` moves the vehicle along ``(sin psi, cos psi)`` in ``(x, y)``.
+- Roll: positive starboard side down; pitch: positive bow up (radians inside the
+  numerics, ``roll`` / ``pitch`` arguments of ``Navigator.measure``; degrees in log
+  tables, ``roll_deg`` / ``pitch_deg``). Body to level: ``R_y(pitch) R_x(roll)`` in
+  forward-starboard-down axes; a nadir beam under a positive roll lands to port.
 
 Fields
 ------

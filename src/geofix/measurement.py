@@ -25,7 +25,7 @@ import numpy as np
 
 from geofix._measurement_kernels import gaussian_log_likelihood
 from geofix.maps.grid import Grid
-from geofix.maps.mapread import bilinear_beams
+from geofix.maps.mapread import read_beams
 from geofix.maps.terrain import gradient, plane_fit
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import footprint_xy
@@ -52,9 +52,10 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
     Returns
     -------
     numpy.ndarray
-        ``(..., b)`` predicted values; NaN off the map and wherever a cell of the bilinear
+        ``(..., b)`` predicted values; NaN off the map and wherever a cell of the
         stencil is NaN (as :meth:`Grid.sample`): the compiled read of
-        :mod:`geofix.maps.mapread`, beam offsets added in cells.
+        :mod:`geofix.maps.mapread` the grid's ``interpolation`` names (bilinear unless
+        set), beam offsets added in cells.
     """
     positions = np.asarray(positions, dtype=float)
     offsets = np.asarray(offsets, dtype=float)
@@ -66,7 +67,7 @@ def predict_measurements(grid: Grid, positions: np.ndarray, heading: float, offs
         f"map prediction of {hypotheses} hypotheses x {offsets.shape[0]} beams",
     )
     col, row = grid.xy_to_cell(positions[..., 0].ravel(), positions[..., 1].ravel())
-    out = bilinear_beams(grid.values, col, row, ox / grid.dx, oy / grid.dy)
+    out = read_beams(grid.values, col, row, ox / grid.dx, oy / grid.dy, grid.interpolation)
     return out.reshape(*positions.shape[:-1], offsets.shape[0])
 
 
@@ -111,7 +112,9 @@ def residuals(grid: Grid, track, heading, offsets, measured, method: str = "bili
     return predict_track(grid, track, heading, offsets, method) - np.asarray(measured)
 
 
-def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var) -> np.ndarray:
+def log_likelihood(
+    predicted: np.ndarray, measured: np.ndarray, noise_var, bias_var: float = 0.0
+) -> np.ndarray:
     """Gaussian log-likelihood of the measured beams for every hypothesis.
 
     Parameters
@@ -124,6 +127,10 @@ def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var) -> np
         Measurement variance (sensor + map error), map units squared: one value for
         every beam or ``(b,)`` per beam (each beam's squared residual is divided by its
         own variance).
+    bias_var : float
+        Variance of an unknown offset common to every beam of the sample (tide, sound
+        speed, map datum), map units squared; 0: none. When positive the likelihood is
+        marginalised over it (:func:`common_bias_log_likelihood`).
 
     Returns
     -------
@@ -131,6 +138,8 @@ def log_likelihood(predicted: np.ndarray, measured: np.ndarray, noise_var) -> np
         ``(...)`` log-likelihoods up to a constant; off-map beams cost
         :data:`OFF_MAP_LOG_LIKELIHOOD` each.
     """
+    if bias_var > 0:
+        return common_bias_log_likelihood(predicted, measured, noise_var, bias_var)
     measured = np.asarray(measured, dtype=float)
     flat = np.asarray(predicted, dtype=float).reshape(-1, measured.shape[0])
     ll = gaussian_log_likelihood(flat, measured, noise_var, OFF_MAP_LOG_LIKELIHOOD)
@@ -299,3 +308,74 @@ def inverse_trace(info: np.ndarray) -> np.ndarray:
     singular = det <= 1e-12 * np.maximum(trace, 1e-300) ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(singular, np.inf, trace / np.where(singular, 1.0, det))
+
+
+def common_bias_log_likelihood(predicted, measured, noise_var, bias_var: float) -> np.ndarray:
+    r"""Log-likelihood marginalised over a Gaussian offset common to every beam.
+
+    With ``y = h(x) + beta 1 + e``, ``beta ~ N(0, P)``, ``e ~ N(0, R)`` (``R`` diagonal,
+    ``v_i``), the residual ``r = y - h(x)`` of a hypothesis is ``N(0, R + P 1 1^T)``.
+    The rank-one covariance has a closed-form inverse and determinant
+    (Sherman-Morrison, matrix determinant lemma): with ``S = sum 1 / v_i`` and
+    ``T = sum r_i / v_i`` over the hypothesis's valid beams,
+
+    ``log L = -0.5 (sum r_i^2 / v_i - P T^2 / (1 + P S)) - 0.5 log(1 + P S)``
+
+    (the ``sum log v_i`` term is the same for every hypothesis and dropped, as in
+    :func:`log_likelihood`). A beam predicted off the map costs
+    :data:`OFF_MAP_LOG_LIKELIHOOD`.
+
+    Parameters
+    ----------
+    predicted : numpy.ndarray
+        ``(..., b)`` predicted values.
+    measured : numpy.ndarray
+        ``(b,)`` measured values (NaN = missing beam, ignored).
+    noise_var : float or numpy.ndarray
+        Per-beam variance, scalar or ``(b,)``, map units squared.
+    bias_var : float
+        ``P``, variance of the common offset, map units squared.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(...)`` log-likelihoods up to a constant.
+    """
+    measured = np.asarray(measured, dtype=float)
+    predicted = np.asarray(predicted, dtype=float)
+    inv_var = np.broadcast_to(1.0 / np.asarray(noise_var, dtype=float), measured.shape)
+    residual = measured - predicted
+    valid = np.isfinite(residual)
+    off_map = (~valid & np.isfinite(measured)).sum(axis=-1)
+    r = np.where(valid, residual, 0.0)
+    w = np.where(valid, inv_var, 0.0)
+    s = w.sum(axis=-1)
+    t = (r * w).sum(axis=-1)
+    quad = (r * r * w).sum(axis=-1) - bias_var * t * t / (1.0 + bias_var * s)
+    return -0.5 * quad - 0.5 * np.log1p(bias_var * s) + OFF_MAP_LOG_LIKELIHOOD * off_map
+
+
+def common_bias_posterior(residual, noise_var, bias_var: float) -> tuple[float, float]:
+    """Posterior mean and variance of the common offset given one sample's residuals.
+
+    Parameters
+    ----------
+    residual : numpy.ndarray
+        ``(b,)`` measured minus predicted values (NaN beams ignored), map units.
+    noise_var : float or numpy.ndarray
+        Per-beam variance, map units squared.
+    bias_var : float
+        Prior variance ``P`` of the offset (prior mean 0), map units squared.
+
+    Returns
+    -------
+    tuple of float
+        ``(P T / (1 + P S), P / (1 + P S))`` with ``S``, ``T`` as in
+        :func:`common_bias_log_likelihood`: map units and map units squared.
+    """
+    residual = np.asarray(residual, dtype=float)
+    inv_var = np.broadcast_to(1.0 / np.asarray(noise_var, dtype=float), residual.shape)
+    valid = np.isfinite(residual)
+    s = float(inv_var[valid].sum())
+    t = float((residual[valid] * inv_var[valid]).sum())
+    return bias_var * t / (1.0 + bias_var * s), bias_var / (1.0 + bias_var * s)

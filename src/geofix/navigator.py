@@ -11,8 +11,13 @@ radians)::
 
 The method is any registered recursive filter by name or spec (``"pmf"``, ``"pf"``,
 ``"sitan"``, ``"pmf:points=41"``, and every filter added to the registry later on the
-same per-step protocol). The time step itself, gating, statuses and re-initialisation
-live in :class:`geofix.filters.online.OnlineFilter`, which also runs every campaign trial
+same per-step protocol). The filters on the INS error state (``"mpf"``,
+``"pmf:model=errstate"``) also need the INS error model, ``ins_model`` (an
+:class:`~geofix.nav.errstate.InsErrorModel`, e.g. ``InsErrorModel.from_specs(spec)`` of
+a scenario's ``ins:`` block); its position prior is replaced by ``init``'s sigma.
+
+The time step itself, gating, statuses and re-initialisation live in
+:class:`geofix.filters.online.OnlineFilter`, which also runs every campaign trial
 (:func:`geofix.filters.base.run_filter`).
 """
 
@@ -42,14 +47,20 @@ class Navigator(OnlineFilter):
         same estimates, bit for bit).
     map_error : Grid, optional
         Per-cell map standard deviation (the ``z_std`` layer of ``geofix grid``).
+    ins_model : InsErrorModel, optional
+        The INS error model (:mod:`geofix.nav.errstate`): required by a filter on the INS
+        error state (``mpf``, ``pmf:model=errstate``), ignored by the others.
 
     Raises
     ------
     ConfigError
-        Unknown method or setting, or a batch matcher instead of a recursive filter.
+        Unknown method or setting, a batch matcher instead of a recursive filter, or a
+        filter that needs an INS error model without one.
     """
 
-    def __init__(self, grid: Grid, method="pmf", settings=None, seed=0, map_error=None) -> None:
+    def __init__(
+        self, grid: Grid, method="pmf", settings=None, seed=0, map_error=None, ins_model=None
+    ) -> None:
         from geofix.methods import parse_method_spec
 
         filt = parse_method_spec(method) if isinstance(method, str) else method
@@ -58,10 +69,16 @@ class Navigator(OnlineFilter):
                 f"navigator: method {getattr(filt, 'name', method)!r} is a batch matcher; "
                 "use a recursive filter (pmf, pf, sitan, ...)"
             )
+        if getattr(filt, "needs_ins_model", False) and ins_model is None:
+            raise ConfigError(
+                f"navigator: method {method if isinstance(method, str) else filt.name!r} "
+                "needs an INS error model (ins_model; for geofix replay / serve: "
+                "--ins SCENARIO.yaml with an ins: block)"
+            )
         if not isinstance(settings, NavigatorSettings):
             settings = NavigatorSettings.from_dict(settings)
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-        super().__init__(filt, grid, settings, rng, map_error)
+        super().__init__(filt, grid, settings, rng, map_error, ins_model)
         self.method = method if isinstance(method, str) else filt.name
 
 

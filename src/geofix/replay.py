@@ -39,13 +39,16 @@ class ReplayInput:
     """What the navigators are fed.
 
     ``indicated`` ``(n, 2)`` INS positions (m), ``heading`` ``(n,)`` rad, ``sigma``
-    ``(n,)`` per-axis prior sigma (m), ``truth`` ``(n, 2)`` or None.
+    ``(n,)`` per-axis prior sigma (m), ``truth`` ``(n, 2)`` or None, ``ins_model`` the
+    :class:`~geofix.nav.errstate.InsErrorModel` of the INS numbers (for ``mpf`` and
+    ``pmf:model=errstate``) or None.
     """
 
     indicated: np.ndarray
     heading: np.ndarray
     sigma: np.ndarray
     truth: np.ndarray | None
+    ins_model: object = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,20 +77,25 @@ def replay_inputs(mission: Mission, ins=None, initial_error_m=None, seed: int = 
     seed : int
         Seed of the INS simulation.
     """
+    from geofix.nav.errstate import InsErrorModel
     from geofix.nav.ins import position_sigma, prior_initial_sigma, simulate_ins
     from geofix.nav.spec import InsSpec
     from geofix.nav.trajectory import TrueTrajectory
 
     if initial_error_m is not None and not (np.isfinite(initial_error_m) and initial_error_m >= 0):
         raise ConfigError(f"--ins-initial-error-m must be >= 0, got {initial_error_m}")
+    spec = ins if isinstance(ins, InsSpec) else InsSpec(**(DEFAULT_INS if ins is None else ins))
+    try:
+        model = InsErrorModel.from_specs(spec)
+    except ConfigError:  # a dvl-mode INS without its DVL: only error-state filters need it
+        model = None
     if mission.nav_source == "ins":
         if mission.sigma_position is not None:
             sigma = np.asarray(mission.sigma_position, dtype=float)
         else:
             s0 = DEFAULT_PRIOR_SIGMA_M if initial_error_m is None else max(initial_error_m / 2, 1)
             sigma = np.full(mission.n, float(s0))
-        return ReplayInput(mission.nav, mission.heading, sigma, mission.truth)
-    spec = ins if isinstance(ins, InsSpec) else InsSpec(**(DEFAULT_INS if ins is None else ins))
+        return ReplayInput(mission.nav, mission.heading, sigma, mission.truth, model)
     rng = np.random.default_rng([int(seed), 0x1175])
     if initial_error_m is not None:
         angle = rng.uniform(0.0, 2.0 * np.pi)
@@ -101,7 +109,23 @@ def replay_inputs(mission: Mission, ins=None, initial_error_m=None, seed: int = 
     distance = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(truth, axis=0).T))])
     sigma = position_sigma(spec, times, distance)
     sigma[0] = max(sigma[0], prior_initial_sigma(spec), 1.0)
-    return ReplayInput(track.indicated, track.heading, np.maximum.accumulate(sigma), truth)
+    sigma = np.maximum.accumulate(sigma)
+    return ReplayInput(track.indicated, track.heading, sigma, truth, model)
+
+
+def load_ins_model(path):
+    """The :class:`~geofix.nav.errstate.InsErrorModel` of a scenario's ``ins:`` (and ``dvl:``).
+
+    Raises
+    ------
+    ConfigError
+        The file is not a valid scenario (as :func:`geofix.sim.scenario.load_scenario`).
+    """
+    from geofix.nav.errstate import InsErrorModel
+    from geofix.sim.scenario import load_scenario
+
+    scenario = load_scenario(path)
+    return InsErrorModel.from_specs(scenario.ins, scenario.dvl)
 
 
 def method_seed(seed: int, spec: str) -> np.random.Generator:
@@ -135,16 +159,22 @@ def replay(
     noise_var = _noise_var(mission)
     estimates = {}
     for spec in methods:
-        nav = Navigator(grid, spec, settings, seed=method_seed(seed, spec), map_error=map_error)
+        rng = method_seed(seed, spec)
+        nav = Navigator(grid, spec, settings, rng, map_error, ins_model=inputs.ins_model)
         estimates[spec] = drive(nav, mission, inputs, noise_var)
     summary = summarise(mission, inputs, estimates)
     return ReplayResult(mission, inputs, estimates, summary)
 
 
 def drive(nav, mission: Mission, inputs: ReplayInput, noise_var=None) -> list[Estimate]:
-    """Feed one navigator the mission: init, then per ping ``motion`` and ``measure``."""
+    """Feed one navigator the mission: init, then per ping ``motion`` and ``measure``.
+
+    The log's roll and pitch (where it has them) go with every ping: they level the
+    sensor's mounting offset (the beams of a log are level-frame offsets already).
+    """
     t = np.asarray(mission.times, dtype=float)
     sigma = inputs.sigma
+    roll, pitch = (_attitude(angles, mission.n) for angles in (mission.roll, mission.pitch))
     nav.init(t[0], inputs.indicated[0], float(sigma[0]), float(inputs.heading[0]))
     out = []
     for k in range(mission.n):
@@ -154,8 +184,15 @@ def drive(nav, mission: Mission, inputs: ReplayInput, noise_var=None) -> list[Es
         beams = np.asarray(mission.beams[k], dtype=float)
         keep = np.isfinite(beams[:, :2]).all(axis=1)
         var = noise_var if np.ndim(noise_var) == 0 else np.asarray(noise_var)[keep]
-        out.append(nav.measure(t[k], beams[keep], noise_var=var))
+        out.append(nav.measure(t[k], beams[keep], var, roll[k], pitch[k]))
     return out
+
+
+def _attitude(angles, n: int) -> list:
+    """Per-ping angles (radians) or None where the log has none (or a NaN)."""
+    if angles is None:
+        return [None] * n
+    return [float(a) if np.isfinite(a) else None for a in np.asarray(angles, dtype=float)]
 
 
 def _noise_var(mission: Mission):

@@ -9,7 +9,9 @@ line, in order. Requests (UTF-8 JSON objects, one per line, at most
   position in the map's metric frame (``lon`` / ``lat`` in degrees instead of ``x`` /
   ``y`` when the map was projected from lon/lat);
 - ``{"type": "ping", "t": s, "beams": [[across_m, along_m, value], ...]}`` (``value``
-  null for a missing beam);
+  null for a missing beam), or rows ``[across_m, along_m, down_m, value]`` of body-frame
+  beam vectors; optional ``roll_deg`` / ``pitch_deg`` (the vehicle attitude, levelling
+  body-frame beams and the mounting offset: ``geofix.sensors.attitude``);
 - ``{"type": "estimate"}``.
 
 Replies: ``{"ok": true, "type": ..., "t", "x", "y", "cov": [[..], [..]], "status", "mle",
@@ -117,18 +119,22 @@ def _beams(request: dict, max_beams: int) -> np.ndarray:
         raise RequestError("ping: beams must be a non-empty list of [across_m, along_m, value]")
     if len(beams) > max_beams:
         raise RequestError(f"ping: {len(beams)} beams, more than max_beams = {max_beams}")
+    width = len(beams[0]) if isinstance(beams[0], list) and len(beams[0]) == 4 else 3
     if (
-        all(type(row) is list and len(row) == 3 for row in beams)
+        all(type(row) is list and len(row) == width for row in beams)
         and {type(v) for row in beams for v in row} <= _NUMBER_OR_NULL
     ):
         out = np.array(beams, dtype=float)  # null becomes NaN (offsets are checked later)
         return out
-    out = np.empty((len(beams), 3))
+    out = np.empty((len(beams), width))
     for i, row in enumerate(beams):
-        if not isinstance(row, list) or len(row) != 3:
-            raise RequestError(f"ping: beam {i} must be [across_m, along_m, value]")
+        if not isinstance(row, list) or len(row) != width:
+            raise RequestError(
+                f"ping: beam {i} must be [across_m, along_m, value] "
+                "(or [across_m, along_m, down_m, value] in every row)"
+            )
         for j, v in enumerate(row):
-            if v is None and j == 2:
+            if v is None and j == width - 1:
                 out[i, j] = np.nan
             elif isinstance(v, bool) or not isinstance(v, int | float):
                 raise RequestError(f"ping: beam {i} holds a {type(v).__name__}, not a number")
@@ -152,12 +158,17 @@ class Session:
         Seed of the connection's navigator.
     map_error : Grid, optional
         Per-cell map standard deviation.
+    ins_model : InsErrorModel, optional
+        The INS error model of a filter on the INS error state (``mpf``,
+        ``pmf:model=errstate``; ``geofix serve --ins SCENARIO.yaml``).
     """
 
-    def __init__(self, grid: Grid, method: str, settings=None, seed: int = 0, map_error=None):
+    def __init__(
+        self, grid: Grid, method: str, settings=None, seed: int = 0, map_error=None, ins_model=None
+    ):
         from geofix.navigator import Navigator
 
-        self.navigator = Navigator(grid, method, settings, seed=seed, map_error=map_error)
+        self.navigator = Navigator(grid, method, settings, seed, map_error, ins_model)
         self.grid = grid
         self._proj: Callable[[float, float], tuple[float, float]] | None = None  # lon, lat -> x, y
 
@@ -201,7 +212,11 @@ class Session:
 
     def _ping(self, request: dict):
         beams = _beams(request, self.navigator.settings.max_beams)
-        return self.navigator.measure(_number(request, "t"), beams)
+        roll, pitch = (
+            float(np.deg2rad(_number(request, key))) if key in request else None
+            for key in ("roll_deg", "pitch_deg")
+        )
+        return self.navigator.measure(_number(request, "t"), beams, roll=roll, pitch=pitch)
 
     def _estimate(self, request: dict):
         return self.navigator.estimate()
@@ -247,10 +262,11 @@ OVERSIZED = {"ok": False, "error": f"request line longer than {MAX_LINE_BYTES} b
 class NavigatorServer:
     """The asyncio TCP server: :meth:`start`, then :meth:`stop` (or ``serve_forever``)."""
 
-    def __init__(self, grid, method, settings=None, seed=0, map_error=None) -> None:
+    def __init__(self, grid, method, settings=None, seed=0, map_error=None, ins_model=None) -> None:
         self.grid, self.method, self.settings = grid, method, settings
-        self.seed, self.map_error = seed, map_error
-        Session(grid, method, settings, seed, map_error)  # refuse a bad method or setting now
+        self.seed, self.map_error, self.ins_model = seed, map_error, ins_model
+        # refuse a bad method or setting (or a missing INS model) now
+        Session(grid, method, settings, seed, map_error, ins_model)
         self._server: asyncio.base_events.Server | None = None
         self.connections = 0
 
@@ -267,7 +283,9 @@ class NavigatorServer:
 
     async def _serve(self, reader, writer) -> None:
         self.connections += 1
-        session = Session(self.grid, self.method, self.settings, self.seed, self.map_error)
+        session = Session(
+            self.grid, self.method, self.settings, self.seed, self.map_error, self.ins_model
+        )
         try:
             async for line in _lines(reader):
                 reply = OVERSIZED if line is None else session.handle(line)
@@ -281,11 +299,16 @@ class NavigatorServer:
                 await writer.wait_closed()
 
 
-def serve(grid, method, host="127.0.0.1", port=7010, settings=None, seed=0, map_error=None):
-    """Run the server until interrupted (``geofix serve``); prints nothing itself."""
+def serve(
+    grid, method, host="127.0.0.1", port=7010, settings=None, seed=0, map_error=None, ins_model=None
+):
+    """Run the server until interrupted (``geofix serve``); prints nothing itself.
+
+    A bad method or setting (or ``mpf`` without ``ins_model``) raises before listening.
+    """
+    server = NavigatorServer(grid, method, settings, seed, map_error, ins_model)
 
     async def main():
-        server = NavigatorServer(grid, method, settings, seed, map_error)
         await server.start(host, port)
         await asyncio.Event().wait()
 
@@ -293,13 +316,15 @@ def serve(grid, method, host="127.0.0.1", port=7010, settings=None, seed=0, map_
 
 
 @contextlib.contextmanager
-def serve_in_thread(grid, method, host="127.0.0.1", settings=None, seed=0, map_error=None):
+def serve_in_thread(
+    grid, method, host="127.0.0.1", settings=None, seed=0, map_error=None, ins_model=None
+):
     """Run a server on a free port in a background thread; yields ``(host, port)``.
 
     The server and its thread stop when the ``with`` block ends.
     """
     loop = asyncio.new_event_loop()
-    server = NavigatorServer(grid, method, settings, seed, map_error)
+    server = NavigatorServer(grid, method, settings, seed, map_error, ins_model)
     port = loop.run_until_complete(server.start(host, 0))
     thread = threading.Thread(target=loop.run_forever, daemon=True)
     thread.start()

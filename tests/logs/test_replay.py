@@ -9,6 +9,7 @@ import xarray as xr
 from typer.testing import CliRunner
 
 from geofix.cli import app
+from geofix.errors import ConfigError
 from geofix.logs import read_mission, read_tables, write_tables
 from geofix.maps import load_grid
 from geofix.replay import replay
@@ -85,3 +86,61 @@ def test_serve_refuses_a_batch_matcher_before_listening():
     args = ["serve", "--map", "builtin:mb_1km", "--method", "tercom", "--port", "0"]
     result = runner.invoke(app, args)
     assert result.exit_code == 2 and "batch matcher" in result.output
+
+
+def test_mpf_replay_of_ex1811_converges_within_two_cells_from_500_m(ex1811_map, tmp_path):
+    """The INS error-state filters run through the navigator with the replay's INS model."""
+    args = ["replay", "builtin:ex1811", "--map", str(ex1811_map), "--method", "mpf"]
+    args += ["--method", "pmf:model=errstate", "--ins-initial-error-m", "500", "--seed", "1"]
+    result = runner.invoke(app, [*args, "--out", str(tmp_path), "--json"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout)
+    assert set(summary) == {"pings", "methods"} and summary["pings"] == 50
+    for name in ("mpf", "pmf:model=errstate"):
+        row = summary["methods"][name]
+        assert set(row) == ROW_KEYS
+        assert row["converged_at_s"] is not None
+        # from 500 m of initial INS error: within 2 map cells (100 m) of the GNSS track
+        assert row["end_error_m"] < 100.0 and row["max_error_m"] < 150.0, (name, row)
+        assert row["mean_error_m"] < 60.0, (name, row)
+
+
+def test_error_state_filters_need_an_ins_model_in_one_line(ex1811_map, tmp_path):
+    from geofix.navigator import Navigator
+
+    grid = load_grid(ex1811_map)
+    for method in ("mpf", "pmf:model=errstate"):
+        with pytest.raises(ConfigError, match="needs an INS error model"):
+            Navigator(grid, method)
+    args = ["serve", "--map", str(ex1811_map), "--method", "mpf", "--port", "0"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2 and "needs an INS error model" in result.output
+    assert "Traceback" not in result.output and len(result.output.strip().splitlines()) == 1
+
+
+SCENARIO = """name: ins-only
+map: {path: builtin:mb_1km}
+track: {speed_m_s: 2, interval_s: 1, samples: 10}
+sensor: {type: multibeam, beams: 11, swath_width_m: 300, noise_std: 1.0}
+ins: {velocity_error_m_s: 0.05, heading_error_deg: 0.05, gyro_bias_deg_h: 0.01}
+"""
+
+
+def test_serve_takes_the_ins_model_from_a_scenario(ex1811_map, tmp_path):
+    from geofix.client import Client
+    from geofix.replay import load_ins_model
+    from geofix.server import serve_in_thread
+
+    (tmp_path / "ins.yaml").write_text(SCENARIO)
+    model = load_ins_model(tmp_path / "ins.yaml")
+    assert model.velocity_error > 0
+    grid = load_grid(ex1811_map)
+    mission = read_mission("builtin:ex1811", frame=grid.meta.get("projection"))
+    with serve_in_thread(grid, "mpf:particles=500", ins_model=model) as (host, port):
+        client = Client(host, port)
+        x, y = mission.nav[0]
+        reply = client.init(t=0.0, x=float(x), y=float(y), sigma_m=50.0)
+        assert reply["ok"] and reply["status"] == "initialising"
+        reply = client.ping(t=0.0, beams=mission.ping(0))
+        assert reply["ok"] and reply["pings"] == 1
+        client.close()

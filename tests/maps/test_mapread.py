@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from geofix.errors import MapError
 from geofix.maps import mapread
 from geofix.maps.grid import Grid
 
@@ -144,3 +145,50 @@ def test_grid_keeps_read_only_float_arrays_and_copies_the_rest():
     strided = np.arange(24.0).reshape(3, 8)[:, ::2]
     strided.flags.writeable = False
     assert Grid(strided, 0.0, 0.0, 1.0, 1.0).values.flags.c_contiguous
+
+
+# ----------------------------------------------------------------------------- bicubic
+def _quadratic_grid():
+    ny, nx = 12, 15
+    yy, xx = np.mgrid[0:ny, 0:nx] * 10.0
+
+    def surface(x, y):
+        return 3.0 + 0.2 * x - 0.1 * y + 0.004 * x * x - 0.003 * x * y + 0.002 * y * y
+
+    return Grid(surface(xx, yy), 0.0, 0.0, 10.0, 10.0), surface
+
+
+def test_bicubic_reproduces_a_quadratic_surface_exactly(rng):
+    grid, surface = _quadratic_grid()
+    x, y = rng.uniform(0.0, 140.0, 500), rng.uniform(0.0, 110.0, 500)  # edges included
+    np.testing.assert_allclose(grid.sample(x, y, method="bicubic"), surface(x, y), atol=1e-9)
+    # bilinear is not exact there (the curvature term), bicubic at the nodes is the node
+    assert np.abs(grid.sample(x, y) - surface(x, y)).max() > 0.01
+    gx, gy = np.meshgrid(grid.x, grid.y)
+    np.testing.assert_allclose(grid.sample(gx, gy, method="bicubic"), grid.values, atol=1e-12)
+
+
+def test_bicubic_nan_rules_are_the_bilinear_ones():
+    from dataclasses import replace
+
+    grid, _ = _quadratic_grid()
+    values = grid.values.copy()
+    values[5, 6] = np.nan  # the cell centred on (60, 50)
+    holed = grid.with_values(values)
+    off = [(-0.1, 50.0), (140.1, 50.0), (60.0, -1.0), (60.0, 110.5), (np.nan, 3.0)]
+    for x, y in off:
+        assert np.isnan(holed.sample(x, y, method="bicubic"))
+    # every position whose 4 x 4 stencil holds the no-data cell reads NaN
+    assert np.isnan(holed.sample(55.0, 45.0, method="bicubic"))  # bilinear NaN too
+    assert np.isnan(holed.sample(45.0, 35.0, method="bicubic"))  # cell two away: in the 4 x 4
+    assert np.isfinite(holed.sample(45.0, 35.0))  # (bilinear's 2 x 2 misses it)
+    assert np.isfinite(holed.sample(25.0, 25.0, method="bicubic"))
+    # the grid's default read and the measurement model follow Grid.interpolation
+    cubic = replace(holed, interpolation="bicubic")
+    assert np.isnan(cubic.sample(45.0, 35.0))
+    from geofix.measurement import predict_measurements
+
+    got = predict_measurements(cubic, np.array([[25.0, 25.0]]), 0.0, np.array([[3.0, 4.0]]))
+    assert got[0, 0] == pytest.approx(holed.sample(28.0, 29.0, method="bicubic"))
+    with pytest.raises(MapError, match="interpolation"):
+        replace(grid, interpolation="spline")

@@ -67,6 +67,9 @@ class Observation:
         no per-beam noise. The measurement functions accept both.
     index : int
         Sample index.
+    bias_var : float
+        Variance of an unknown offset common to every beam (tide, sound speed, map
+        datum), map units squared, the likelihood is marginalised over; 0: none.
     """
 
     values: np.ndarray
@@ -75,6 +78,7 @@ class Observation:
     offsets: np.ndarray
     noise_var: np.ndarray | float
     index: int
+    bias_var: float = 0.0
 
 
 class RecursiveFilter:

@@ -70,7 +70,7 @@ from geofix.filters.pf import (
 )
 from geofix.maps.grid import Grid
 from geofix.measurement import log_likelihood, predict_measurements
-from geofix.nav.errstate import ErrorState, error_state, step_velocities
+from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
 from geofix.problem import MatchProblem
 
 _P = slice(0, 2)
@@ -158,6 +158,8 @@ class Mpf(RecursiveFilter):
     """
 
     name: ClassVar[str] = "mpf"
+    #: The filter needs an INS error model (``problem.ins_model``; a navigator's ``ins_model``).
+    needs_ins_model: ClassVar[bool] = True
 
     particles: int = 5000
     max_particles: int = 200_000
@@ -235,8 +237,9 @@ class Mpf(RecursiveFilter):
         if effective_sample_size(state.weights) < self.resample_threshold * state.dp.shape[0]:
             state = self._resample(state, rng)
         k = state.step
-        f = state.model.transitions[k]
-        q = state.model.process_cov[k]
+        model, f, q = step_matrices(
+            state.model, k, motion.displacement, motion.dt, motion.process_var
+        )
         s = f[:, _L] @ state.cov @ f[:, _L].T + q
         s_pp = s[_P, _P] + MIN_STEP_VAR * np.eye(2)
         mean = _times(state.dp, f[:, _P]) + _times(state.linear, f[:, _L])
@@ -250,6 +253,7 @@ class Mpf(RecursiveFilter):
             cov=_sym(s[_L, _L] - gain @ s[_P, _L]),
             indicated=state.indicated + np.asarray(motion.displacement, dtype=float),
             step=k + 1,
+            model=model,
         )
 
     def update(self, state: MpfState, obs: Observation, grid: Grid, rng) -> MpfState:
@@ -265,7 +269,7 @@ class Mpf(RecursiveFilter):
             if self.discretisation_noise and state.spacing > 0:
                 view = PfState(positions, state.log_weight, state.cell, spacing=state.spacing)
                 var = var + spread_field_variance(grid, view, obs, rng)
-            log_weight = log_weight + log_likelihood(predicted, obs.values, var)
+            log_weight = log_weight + log_likelihood(predicted, obs.values, var, obs.bias_var)
             evaluations += positions.shape[0]
         return replace(
             state, log_weight=log_weight - logsumexp(log_weight), evaluations=evaluations

@@ -21,9 +21,12 @@ owns everything a navigator adds around it:
   rejected as an outlier and not folded in;
 - **status** -- ``initialising`` until a ping is accepted, then ``converging``, then
   ``converged`` once the posterior's largest 1-sigma is below ``converge_sigma_m`` and the
-  MMSE (mean) and MLE (mode) positions are within ``converge_mle_m`` of each other (the
-  convergence test of MBARI's TRN, Stuckey et al. / Meduna 2011, without its
-  KL-divergence term);
+  MMSE (mean) and MLE (mode) positions are within ``converge_mle_m`` of each other and
+  the posterior is close to a Gaussian: the KL divergence of the grid's or particles'
+  posterior to the Gaussian of the same mean and covariance is below
+  ``converge_kl_nats`` (the convergence test of MBARI's TRN, Meduna 2011; the estimators
+  are those of :mod:`geofix.filters.convergence`; a filter without weighted points, an
+  EKF, skips the KL term);
 - **lost and re-initialisation** (TRN's rules) -- when the mean NIS over the last
   ``nis_window`` pings exceeds ``nis_limit``, when no ping has been accepted for
   ``outage_s`` (a measurement or bottom-lock outage), or when the posterior grows beyond
@@ -37,15 +40,21 @@ All randomness goes through the one generator handed in.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
 from geofix.errors import ConfigError, InputError, MatchError
 from geofix.filters.base import Motion, Observation
+from geofix.filters.convergence import posterior_kl, posterior_points
 from geofix.maps.grid import Grid
-from geofix.measurement import map_error_variance, predict_measurements
+from geofix.measurement import (
+    common_bias_posterior,
+    map_error_variance,
+    predict_measurements,
+)
 from geofix.problem import MatchProblem
+from geofix.sensors.attitude import level_offsets
 
 STATUSES = ("initialising", "converging", "converged", "lost")
 
@@ -73,8 +82,10 @@ class NavigatorSettings:
         Lost when the posterior's largest 1-sigma exceeds this times the prior sigma.
     reinit : bool
         Re-initialise when lost (False: only report ``lost``).
-    min_beams : int
-        A ping with fewer valid beams is not used (it counts towards an outage).
+    min_beams : int or None
+        A ping with fewer valid beams is not used (it counts towards an outage). None
+        (default): 1 for a ping of one beam (a single-beam echosounder, a gravimeter),
+        3 for a ping of several (a multibeam ping needs three valid beams).
     max_update_beams : int or None
         Use at most this many valid beams of a ping, evenly spread across the swath
         (None: all of them).
@@ -82,6 +93,11 @@ class NavigatorSettings:
         Largest posterior 1-sigma for ``converged``, metres (None: 2 map cells).
     converge_mle_m : float or None
         Largest MMSE-to-MLE distance for ``converged``, metres (None: ``max(10 m, 1 cell)``).
+    converge_kl_nats : float or None
+        Largest KL divergence of the posterior to its moment-matched Gaussian for
+        ``converged``, nats (:mod:`geofix.filters.convergence`; None: no KL term). The
+        default 0.2 nats passes a Gaussian and refuses two equal modes six standard
+        deviations (of one mode) apart (about 0.47 nats).
     min_start_share : float
         Share of a 9 x 9 lattice over the ``+-2 sigma`` start box that must read valid map
         data for :meth:`OnlineFilter.init` (start-up gating).
@@ -91,10 +107,28 @@ class NavigatorSettings:
         Largest speed implied by two navigation records, m/s.
     max_beams : int
         Most beams a ping may carry.
+    interpolation : {"bilinear", "bicubic"}
+        The map read of the measurement model (:mod:`geofix.maps.mapread`): bilinear
+        (default) or Keys bicubic (smoother, exact for quadratic terrain; same NaN rules).
+    depth_bias_std : float
+        Prior 1-sigma of an unknown offset common to every beam of a ping (tide, sound
+        speed, map datum), map units; 0 (default): no offset. When positive, a bias
+        state ``N(b, P)`` starts at ``N(0, depth_bias_std^2)``; every ping's values are
+        taken relative to ``b`` and each hypothesis's likelihood is marginalised over
+        the offset in closed form (:func:`geofix.measurement.common_bias_log_likelihood`);
+        on a converged ping the state is updated from the residuals at the estimate
+        (:func:`geofix.measurement.common_bias_posterior`). The estimate reports ``b``.
+        Only a grid or particle filter takes it (an EKF such as ``sitan`` carries its
+        own field bias): for the others the setting is ignored.
+    depth_bias_walk : float
+        Variance the bias state gains per second, map units squared per second
+        (default 1e-3: about 1 m over 15 minutes, a tide's rate).
     mount_offset_m : tuple of float
         The sensor's mounting offset from the navigation reference point, ``(across,
-        along)`` metres in the body frame (starboard, forward), added to every beam's
-        offsets.
+        along)`` or ``(across, along, down)`` metres in the body frame (starboard,
+        forward, down), added to every beam's offsets; with a ping's roll and pitch it is
+        levelled with the beams first (:mod:`geofix.sensors.attitude`), so a sensor
+        mounted below the reference point moves across under a roll.
     """
 
     noise_std: float = 2.0
@@ -105,21 +139,29 @@ class NavigatorSettings:
     outage_s: float | None = 120.0
     max_sigma_factor: float | None = 3.0
     reinit: bool = True
-    min_beams: int = 3
+    min_beams: int | None = None
     max_update_beams: int | None = 64
     converge_sigma_m: float | None = None
     converge_mle_m: float | None = None
+    converge_kl_nats: float | None = 0.2
     min_start_share: float = 0.2
     max_pose_gap_s: float | None = 5.0
     max_speed_m_s: float | None = 30.0
     max_beams: int = 4096
-    mount_offset_m: tuple[float, float] = (0.0, 0.0)
+    interpolation: str = "bilinear"
+    depth_bias_std: float = 0.0
+    depth_bias_walk: float = 1e-3
+    mount_offset_m: tuple[float, ...] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
-        positive = ("noise_std", "nis_limit", "max_beams", "min_beams")
+        positive = ("noise_std", "nis_limit", "max_beams")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"navigator: {name} must be positive, got {getattr(self, name)}")
+        if self.min_beams is not None and not self.min_beams > 0:
+            raise ConfigError(
+                f"navigator: min_beams must be positive or None, got {self.min_beams}"
+            )
         optional = (
             "gate_nis",
             "outage_s",
@@ -127,6 +169,7 @@ class NavigatorSettings:
             "max_update_beams",
             "converge_sigma_m",
             "converge_mle_m",
+            "converge_kl_nats",
             "max_pose_gap_s",
             "max_speed_m_s",
         )
@@ -136,18 +179,31 @@ class NavigatorSettings:
                 raise ConfigError(f"navigator: {name} must be positive or None, got {value}")
         if self.nis_window < 0 or self.process_noise_m2_s < 0:
             raise ConfigError("navigator: nis_window and process_noise_m2_s must be >= 0")
+        if self.interpolation not in ("bilinear", "bicubic"):
+            raise ConfigError(
+                f"navigator: interpolation must be bilinear or bicubic, got {self.interpolation!r}"
+            )
+        for name in ("depth_bias_std", "depth_bias_walk"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ConfigError(f"navigator: {name} must be finite and >= 0, got {value}")
         if not 0.0 <= self.min_start_share <= 1.0:
             raise ConfigError("navigator: min_start_share must be in [0, 1]")
         mount = np.asarray(self.mount_offset_m, dtype=float)
-        if mount.shape != (2,) or not np.isfinite(mount).all():
+        if mount.shape not in ((2,), (3,)) or not np.isfinite(mount).all():
             raise ConfigError(
-                "navigator: mount_offset_m must be two finite numbers (across, along)"
+                "navigator: mount_offset_m must be two or three finite numbers "
+                "(across, along[, down])"
             )
 
     @classmethod
     def passive(cls) -> NavigatorSettings:
-        """No gating, no re-initialisation, no input limits: a campaign trial's filter."""
+        """No gating, no re-initialisation, no input limits: a campaign trial's filter.
+
+        Nothing reads a trial's status, so the KL term is off too (it costs a binning).
+        """
         return cls(
+            converge_kl_nats=None,
             gate_nis=None,
             nis_window=0,
             outage_s=None,
@@ -196,6 +252,12 @@ class Estimate:
         The last ping was folded in (False: gated out, too few beams, or no ping yet).
     pings, rejected, reinits : int
         Pings seen, pings gated out, re-initialisations so far.
+    kl_nats : float
+        KL divergence of the posterior to its Gaussian, nats (NaN: not computed -- the
+        spread or MLE test failed first -- or a filter without weighted points).
+    depth_bias, depth_bias_std : float
+        The common-offset state's mean and 1-sigma, map units (measured minus map; NaN
+        when ``depth_bias_std`` is 0).
     """
 
     t: float
@@ -208,6 +270,9 @@ class Estimate:
     pings: int = 0
     rejected: int = 0
     reinits: int = 0
+    kl_nats: float = float("nan")
+    depth_bias: float = float("nan")
+    depth_bias_std: float = float("nan")
 
     @property
     def sigma_m(self) -> float:
@@ -215,7 +280,12 @@ class Estimate:
         return float(np.sqrt(max(np.linalg.eigvalsh(self.covariance).max(), 0.0)))
 
     def to_dict(self) -> dict:
-        """JSON-ready mapping: ``t, x, y, cov, status, mle, nis, accepted, pings, reinits``."""
+        """JSON-ready mapping of the estimate.
+
+        Keys ``t, x, y, cov, status, mle, nis, accepted, pings, rejected, reinits,
+        kl_nats, depth_bias`` (``nis``, ``kl_nats``, ``depth_bias`` null when not
+        computed).
+        """
         return {
             "t": float(self.t),
             "x": float(self.position[0]),
@@ -228,15 +298,25 @@ class Estimate:
             "pings": int(self.pings),
             "rejected": int(self.rejected),
             "reinits": int(self.reinits),
+            "kl_nats": None if not np.isfinite(self.kl_nats) else float(self.kl_nats),
+            "depth_bias": None if not np.isfinite(self.depth_bias) else float(self.depth_bias),
         }
 
 
-def start_problem(grid: Grid, t: float, position, sigma_m: float, heading: float) -> MatchProblem:
+def start_problem(
+    grid: Grid, t: float, position, sigma_m: float, heading: float, ins_model=None
+) -> MatchProblem:
     """A one-sample :class:`MatchProblem` carrying a prior for ``filter.initialize``.
 
     ``measured`` holds one placeholder reading of 0 (filters check that a problem has
-    some finite reading; :meth:`OnlineFilter.init` never updates with it).
+    some finite reading; :meth:`OnlineFilter.init` never updates with it). An
+    ``ins_model`` (:class:`~geofix.nav.errstate.InsErrorModel`) is carried with its
+    position prior replaced by the start's: no fixed offset, per-axis ``sigma_m``; its
+    velocity, tilt, bias and heading-error prior are kept. A filter on it builds each
+    later step from the motion (:func:`geofix.nav.errstate.step_matrices`).
     """
+    if ins_model is not None:
+        ins_model = replace(ins_model, initial_offset=(0.0, 0.0), initial_std=float(sigma_m))
     return MatchProblem(
         grid=grid,
         indicated=np.asarray(position, dtype=float).reshape(1, 2),
@@ -245,6 +325,7 @@ def start_problem(grid: Grid, t: float, position, sigma_m: float, heading: float
         measured=np.zeros((1, 1)),
         sigma_position=np.array([float(sigma_m)]),
         times=np.array([float(t)]),
+        ins_model=ins_model,
     )
 
 
@@ -269,13 +350,15 @@ def mode_position(filt, state) -> np.ndarray:
     return np.asarray(filt.estimate(state)[0], dtype=float)
 
 
-def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
-    """Per-beam NIS of ``obs`` against the posterior ``N(mean, cov)`` (NaN if no beam).
+def unscented_points(mean, cov) -> tuple[np.ndarray, np.ndarray]:
+    """The five sigma points ``mean``, ``mean +- sqrt(3) L_i`` (``L L^T = cov``) and weights.
 
-    The predicted reading and its spread over the posterior come from the five
-    unscented sigma points ``mean``, ``mean +- sqrt(3) L_i`` (``L L^T = cov``, weights
-    1/3 and 1/6): ``mean_b (y_b - yhat_b)^2 / (R_b + S_b)``.
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(5, 2)`` points (metres) and ``(5,)`` weights ``1/3, 1/6, 1/6, 1/6, 1/6``.
     """
+    mean = np.asarray(mean, dtype=float)
     cov = 0.5 * (cov + cov.T) + 1e-9 * np.eye(2)
     try:
         chol = np.linalg.cholesky(cov)
@@ -283,7 +366,20 @@ def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
         chol = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * np.eye(2)
     spread = np.sqrt(3.0) * chol.T
     points = np.vstack([mean, mean + spread, mean - spread])
-    weights = np.array([1 / 3, 1 / 6, 1 / 6, 1 / 6, 1 / 6])
+    return points, np.array([1 / 3, 1 / 6, 1 / 6, 1 / 6, 1 / 6])
+
+
+def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
+    """Per-beam NIS of ``obs`` against the posterior ``N(mean, cov)`` (NaN if no beam).
+
+    The predicted reading and its spread over the posterior come from the five
+    unscented sigma points ``mean``, ``mean +- sqrt(3) L_i`` (``L L^T = cov``, weights
+    1/3 and 1/6): ``mean_b (y_b - yhat_b)^2 / (R_b + S_b)``. With a common-offset
+    variance ``obs.bias_var = P`` the residual's covariance is ``diag(v) + P 1 1^T``
+    (``v_b = R_b + S_b``) and the NIS is its quadratic form per beam,
+    ``(sum r^2 / v - P T^2 / (1 + P S)) / b`` (``S = sum 1 / v``, ``T = sum r / v``).
+    """
+    points, weights = unscented_points(mean, cov)
     pred = predict_measurements(grid, points, obs.heading, obs.offsets)
     use = np.isfinite(obs.values) & np.isfinite(pred).all(axis=0)
     if not use.any():
@@ -292,7 +388,12 @@ def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
     yhat = weights @ p
     s = weights @ (p - yhat) ** 2
     r = np.broadcast_to(np.asarray(obs.noise_var, dtype=float), obs.values.shape)[use]
-    return float(np.mean((obs.values[use] - yhat) ** 2 / (r + s)))
+    residual, var = obs.values[use] - yhat, r + s
+    quad = float(np.sum(residual**2 / var))
+    if obs.bias_var > 0:
+        t, total = float(np.sum(residual / var)), float(np.sum(1.0 / var))
+        quad -= obs.bias_var * t * t / (1.0 + obs.bias_var * total)
+    return quad / residual.size
 
 
 class OnlineFilter:
@@ -313,14 +414,22 @@ class OnlineFilter:
     map_error : Grid, optional
         The map's per-cell standard deviation layer (added as map-error variance to the
         measurement variance at each beam's footprint).
+    ins_model : InsErrorModel, optional
+        The INS error model (:mod:`geofix.nav.errstate`) of a filter that needs one
+        (``mpf``, ``pmf:model=errstate``); see :func:`start_problem` for its prior.
     """
 
-    def __init__(self, filt, grid: Grid, settings=None, rng=None, map_error=None) -> None:
+    def __init__(
+        self, filt, grid: Grid, settings=None, rng=None, map_error=None, ins_model=None
+    ) -> None:
         self.filter = filt
-        self.grid = grid
         self.settings = settings or NavigatorSettings()
+        if grid.interpolation != self.settings.interpolation:
+            grid = replace(grid, interpolation=self.settings.interpolation)
+        self.grid = grid
         self.rng = rng
         self.map_error = map_error
+        self.ins_model = ins_model
         self.state = None
         self._nis: deque[float] = deque(maxlen=max(self.settings.nis_window, 1))
         self._pose: tuple[float, np.ndarray, float] | None = None  # (t, position (2,), heading)
@@ -330,6 +439,43 @@ class OnlineFilter:
         self._good_offset = np.zeros(2)
         self._pings = self._rejected = self._reinits = self._accepted_count = 0
         self._last: Estimate | None = None
+        self._reset_bias(0.0)
+
+    def _min_beams(self, obs: Observation) -> int:
+        """Valid beams a ping needs: the setting, or 1 for a one-beam ping and 3 otherwise."""
+        if self.settings.min_beams is not None:
+            return int(self.settings.min_beams)
+        return 1 if obs.values.size == 1 else 3
+
+    def _reset_bias(self, t: float) -> None:
+        """The common-offset state back at its prior ``N(0, depth_bias_std^2)``."""
+        self._bias = 0.0
+        self._bias_var = self.settings.depth_bias_std**2
+        self._t_bias = float(t)
+
+    def _bias_update(self, obs: Observation, mean: np.ndarray, cov: np.ndarray) -> None:
+        """Fold a converged ping's residuals into the bias state.
+
+        The offset's posterior given the ping is taken at the five sigma points of the
+        position posterior (:func:`unscented_points`): its mean is their weighted mean and
+        its variance the posterior variance plus their weighted spread, so an uncertain
+        position (on a slope) leaves the offset uncertain too.
+        """
+        points, weights = unscented_points(mean, cov)
+        predicted = predict_measurements(self.grid, points, obs.heading, obs.offsets)
+        valid = np.isfinite(predicted).all(axis=0)
+        if not (valid & np.isfinite(obs.values)).any():
+            return
+        values = np.where(valid, obs.values, np.nan)
+        shifts = np.empty(points.shape[0])
+        var = 0.0
+        for i in range(points.shape[0]):
+            shifts[i], var = common_bias_posterior(
+                values - predicted[i], obs.noise_var, obs.bias_var
+            )
+        shift = float(weights @ shifts)
+        self._bias += shift
+        self._bias_var = var + float(weights @ (shifts - shift) ** 2)
 
     # ------------------------------------------------------------------ the two steps
     def start(self, problem: MatchProblem) -> None:
@@ -354,7 +500,7 @@ class OnlineFilter:
         self._pings += 1
         s = self.settings
         nis = float("nan")
-        accepted = int(np.isfinite(obs.values).sum()) >= s.min_beams
+        accepted = int(np.isfinite(obs.values).sum()) >= self._min_beams(obs)
         if accepted and (s.gate_nis is not None or s.nis_window > 0):
             mean, cov = self.filter.estimate(self.state)
             nis = innovation_nis(self.grid, mean, cov, obs)
@@ -371,6 +517,9 @@ class OnlineFilter:
         estimate = self._describe(t, nis, accepted)
         if estimate.status == "converged":
             self._good_offset = estimate.position - pose[1]
+            if accepted and obs.bias_var > 0:
+                self._bias_update(obs, estimate.position, estimate.covariance)
+                estimate = Estimate(**{**_fields(estimate), **self._bias_fields()})
         reason = self._lost_reason(estimate, t)
         if reason is not None:
             estimate = self._lose(estimate, t)
@@ -395,7 +544,7 @@ class OnlineFilter:
         self._check_start_box(position, sigma_m)
         try:
             state = self.filter.initialize(
-                start_problem(self.grid, t, position, sigma_m, heading), self.rng
+                start_problem(self.grid, t, position, sigma_m, heading, self.ins_model), self.rng
             )
         except MatchError as exc:
             raise InputError(f"init: {exc}") from None
@@ -407,6 +556,7 @@ class OnlineFilter:
         self._nis.clear()
         self._pings = self._rejected = self._reinits = self._accepted_count = 0
         self._last = None
+        self._reset_bias(t)
         return self.estimate()
 
     def motion(self, t: float, position, heading: float, process_var: float | None = None):
@@ -446,8 +596,8 @@ class OnlineFilter:
             self._last = self._lose(self._describe(t, float("nan"), False), t)
         return self.estimate()
 
-    def measure(self, t: float, beams, noise_var=None) -> Estimate:
-        """A ping: ``beams`` ``(b, 3)`` rows ``(across_m, along_m, value)``.
+    def measure(self, t: float, beams, noise_var=None, roll=None, pitch=None) -> Estimate:
+        """A ping: rows ``(across_m, along_m, value)`` or ``(across_m, along_m, down_m, value)``.
 
         Values may be NaN (missing beam); offsets must be finite. The ping is placed with
         the last navigation record, which must be within ``max_pose_gap_s``.
@@ -457,15 +607,23 @@ class OnlineFilter:
         t : float
             Ping time, seconds (not before the previous input).
         beams : array_like
-            ``(b, 3)`` across / along offsets (metres) and measured values (map units).
+            ``(b, 3)``: level-frame across / along footprint offsets (metres, as a sonar
+            that corrects for attitude reports them) and measured values (map units);
+            ``(b, 4)``: body-frame beam vectors ``(across, along, down)`` from the sensor
+            (metres), levelled by ``roll`` and ``pitch``, and the values.
         noise_var : float or array_like, optional
             Measurement variance, map units squared, scalar or ``(b,)``; default
             ``noise_std^2``. The map's per-cell error variance is added to it.
+        roll, pitch : float, optional
+            Vehicle attitude at the ping, radians (roll positive starboard down, pitch
+            positive bow up; :mod:`geofix.conventions`); None is 0 for body-frame beams.
+            They level the body-frame beams and the mounting offset.
 
         Raises
         ------
         InputError
-            Before :meth:`init`, out of order, far from the last pose, or malformed beams.
+            Before :meth:`init`, out of order, far from the last pose, malformed beams,
+            or a roll / pitch not finite or beyond +-90 degrees.
         """
         t_pose, position, heading = self._require_started()
         t = _finite(t, "t")
@@ -478,15 +636,18 @@ class OnlineFilter:
                 f"(at most {gap:g} s)"
             )
         beams = self._beams(beams)
-        offsets, values = beams[:, :2], beams[:, 2]
-        if any(self.settings.mount_offset_m):
-            offsets = offsets + np.asarray(self.settings.mount_offset_m, dtype=float)
+        offsets, values = self._level(beams, roll, pitch)
         var = self._noise_var(noise_var, values.shape[0])
         offsets, values, var = self._thin(offsets, values, var)
         if self.map_error is not None:
             mean, _ = self.filter.estimate(self.state)
             var = var + map_error_variance(self.map_error, mean, heading, offsets)
-        obs = Observation(values, position, heading, offsets, var, self._pings)
+        bias_var = 0.0
+        if self.settings.depth_bias_std > 0 and posterior_points(self.state) is not None:
+            self._bias_var += self.settings.depth_bias_walk * max(t - self._t_bias, 0.0)
+            self._t_bias = t
+            values, bias_var = values - self._bias, self._bias_var
+        obs = Observation(values, position, heading, offsets, var, self._pings, bias_var)
         self._t_last = t
         return self.update(obs, t)
 
@@ -504,8 +665,13 @@ class OnlineFilter:
         mle = mode_position(self.filter, self.state)
         mean, cov = np.asarray(mean, dtype=float), np.asarray(cov, dtype=float)
         status = "initialising" if self._accepted_count == 0 else "converging"
+        kl = float("nan")
         if status == "converging" and self._converged(mean, cov, mle):
             status = "converged"
+            if self.settings.converge_kl_nats is not None:
+                kl = posterior_kl(self.state)
+                if np.isfinite(kl) and kl > self.settings.converge_kl_nats:
+                    status = "converging"
         return Estimate(
             t=float(t),
             position=mean,
@@ -517,7 +683,14 @@ class OnlineFilter:
             pings=self._pings,
             rejected=self._rejected,
             reinits=self._reinits,
+            kl_nats=kl,
+            **self._bias_fields(),
         )
+
+    def _bias_fields(self) -> dict:
+        if self.settings.depth_bias_std <= 0:
+            return {}
+        return {"depth_bias": self._bias, "depth_bias_std": float(np.sqrt(self._bias_var))}
 
     def _converged(self, mean, cov, mle) -> bool:
         cell = self.grid.cell_size
@@ -553,11 +726,13 @@ class OnlineFilter:
         centre = position + self._good_offset
         try:
             self.state = self.filter.initialize(
-                start_problem(self.grid, t, centre, self._prior_sigma, heading), self.rng
+                start_problem(self.grid, t, centre, self._prior_sigma, heading, self.ins_model),
+                self.rng,
             )
         except MatchError:
             return lost  # the restart box is off the map: keep the old posterior, stay lost
         self._reinits += 1
+        self._reset_bias(t)
         self._accepted_count = 0
         self._t_accepted = t
         self._nis.clear()
@@ -584,18 +759,35 @@ class OnlineFilter:
                 f"(need {share_needed:.0%})"
             )
 
+    def _level(self, beams: np.ndarray, roll, pitch) -> tuple[np.ndarray, np.ndarray]:
+        """``(offsets (b, 2), values (b,))``: level footprint offsets and the readings."""
+        values = beams[:, -1]
+        mount = np.asarray(self.settings.mount_offset_m, dtype=float)
+        if beams.shape[1] == 3 and roll is None and pitch is None:
+            return (beams[:, :2] + mount[:2] if mount.any() else beams[:, :2]), values
+        attitude = []
+        for name, angle in (("roll", roll), ("pitch", pitch)):
+            angle = 0.0 if angle is None else _finite(angle, name)
+            if abs(angle) >= 0.5 * np.pi:
+                raise InputError(f"ping: {name} must be within +-90 degrees, got {angle:g} rad")
+            attitude.append(angle)
+        if beams.shape[1] == 4:
+            return level_offsets(beams[:, :3], *attitude, mount)[:, :2], values
+        lever = level_offsets(np.zeros((1, 3)), *attitude, mount)[0, :2]
+        return beams[:, :2] + lever, values
+
     def _beams(self, beams) -> np.ndarray:
         try:
             arr = np.asarray(beams, dtype=float)
         except (TypeError, ValueError):
             raise InputError("ping: beams must be a list of [across_m, along_m, value]") from None
-        if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] < 1:
-            raise InputError(f"ping: beams must have shape (b, 3), got {arr.shape}")
+        if arr.ndim != 2 or arr.shape[1] not in (3, 4) or arr.shape[0] < 1:
+            raise InputError(f"ping: beams must have shape (b, 3) or (b, 4), got {arr.shape}")
         if arr.shape[0] > self.settings.max_beams:
             raise InputError(
                 f"ping: {arr.shape[0]} beams, more than max_beams = {self.settings.max_beams}"
             )
-        if not np.isfinite(arr[:, :2]).all() or np.isinf(arr[:, 2]).any():
+        if not np.isfinite(arr[:, :-1]).all() or np.isinf(arr[:, -1]).any():
             raise InputError("ping: beam offsets must be finite and values finite or NaN")
         return arr
 
@@ -649,4 +841,5 @@ __all__ = [
     "innovation_nis",
     "mode_position",
     "start_problem",
+    "unscented_points",
 ]

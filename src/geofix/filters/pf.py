@@ -207,7 +207,7 @@ class Pf(RecursiveFilter):
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         if self.discretisation_noise and state.spacing > 0:
             var = var + spread_field_variance(grid, state, obs, rng)
-        log_weight = state.log_weight + log_likelihood(predicted, obs.values, var)
+        log_weight = state.log_weight + log_likelihood(predicted, obs.values, var, obs.bias_var)
         return replace(
             state,
             log_weight=log_weight - logsumexp(log_weight),

@@ -69,7 +69,7 @@ from geofix.filters._pmf_errstate import conditional_motion, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
 from geofix.measurement import log_likelihood, predict_measurements
-from geofix.nav.errstate import ErrorState, error_state
+from geofix.nav.errstate import ErrorState, error_state, step_matrices
 from geofix.problem import MatchProblem
 
 
@@ -222,6 +222,11 @@ class Pmf(RecursiveFilter):
         if self.regrid_ratio <= 1 or self.max_zoom <= 1:
             raise ConfigError("pmf: regrid_ratio and max_zoom must exceed 1")
 
+    @property
+    def needs_ins_model(self) -> bool:
+        """The error-state motion model needs an INS error model (``problem.ins_model``)."""
+        return self.model == "errstate"
+
     # ------------------------------------------------------------------ the recursion
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> PmfState:
         """Gaussian prior ``N(indicated[0], sigma_position[0]^2 I)`` on a square grid.
@@ -268,7 +273,9 @@ class Pmf(RecursiveFilter):
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         if self.discretisation_noise:
             var = var + node_field_variance(predicted, obs.values)
-        log_weight = ops.normalise(state.log_weight + log_likelihood(predicted, obs.values, var))
+        log_weight = ops.normalise(
+            state.log_weight + log_likelihood(predicted, obs.values, var, obs.bias_var)
+        )
         return replace(state, log_weight=log_weight, evaluations=state.evaluations + xy.size // 2)
 
     def estimate(self, state: PmfState) -> tuple[np.ndarray, np.ndarray]:
@@ -315,7 +322,7 @@ class Pmf(RecursiveFilter):
         assert es is not None and state.kf is not None and state.indicated is not None
         mean, cov = self.estimate(state)
         mu, sigma = replace_marginal(state.kf[0], state.kf[1], state.indicated - mean, cov)
-        f, q = es.transitions[k], es.process_cov[k]
+        es, f, q = step_matrices(es, k, motion.displacement, motion.dt, motion.process_var)
         g, h, kernel = conditional_motion(mu, sigma, f, q)
         indicated = state.indicated + np.asarray(motion.displacement, dtype=float)
         shift = indicated - g @ state.indicated - h  # position' = G position + shift
@@ -341,6 +348,7 @@ class Pmf(RecursiveFilter):
             axes=axes,
             spacing=spacing,
             kf=(mu_next, 0.5 * (sigma_next + sigma_next.T)),
+            errstate=es,
             indicated=indicated,
             step=k + 1,
             regrids=state.regrids + 1,

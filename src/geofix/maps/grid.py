@@ -34,6 +34,10 @@ class Grid:
         Short name for tables and figures.
     meta : dict
         Free-form provenance (source file, projection, region), never used by numerics.
+    interpolation : {"bilinear", "bicubic"}
+        The read the map's users take by default (:meth:`sample` without a method, the
+        measurement model of :func:`geofix.measurement.predict_measurements`); gradients
+        are always those of the bilinear interpolant.
     """
 
     values: np.ndarray
@@ -45,6 +49,7 @@ class Grid:
     units: str = "m"
     name: str = "map"
     meta: dict = field(default_factory=dict)
+    interpolation: str = "bilinear"
 
     def __post_init__(self) -> None:
         values = _stored_values(self.values)
@@ -53,6 +58,11 @@ class Grid:
         if not (self.dx > 0 and self.dy > 0):
             raise MapError(
                 f"map {self.name!r}: cell size must be positive, got {self.dx}, {self.dy}"
+            )
+        if self.interpolation not in mapread.READS:
+            raise MapError(
+                f"map {self.name!r}: interpolation must be one of {mapread.READS}, "
+                f"got {self.interpolation!r}"
             )
         if self.kind not in KINDS:
             raise MapError(f"map {self.name!r}: kind must be one of {KINDS}, got {self.kind!r}")
@@ -100,16 +110,17 @@ class Grid:
         return ~np.isnan(self.sample(x, y))
 
     # ------------------------------------------------------------------ sampling
-    def sample(self, x, y, method: str = "bilinear") -> np.ndarray:
+    def sample(self, x, y, method: str | None = None) -> np.ndarray:
         """Read the field at metric positions.
 
         Parameters
         ----------
         x, y : array_like
             Eastings and northings, metres; any (broadcastable) shape.
-        method : {"bilinear", "nearest"}
-            Interpolation. Bilinear uses the four surrounding cell centres; a NaN in any of
-            them gives NaN.
+        method : {"bilinear", "bicubic", "nearest"}, optional
+            Interpolation (default: the grid's ``interpolation``, bilinear unless set).
+            Bilinear uses the four surrounding cell centres, bicubic (Keys, a = -0.5) the
+            sixteen; a NaN in any of them gives NaN (:mod:`geofix.maps.mapread`).
 
         Returns
         -------
@@ -117,6 +128,7 @@ class Grid:
             Field values, broadcast shape of ``x`` and ``y``; NaN off the map and in
             no-data cells.
         """
+        method = self.interpolation if method is None else method
         return mapread.read_xy(self.values, self.x0, self.y0, self.dx, self.dy, x, y, method)
 
     def sample_gradient(self, x, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

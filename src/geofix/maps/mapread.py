@@ -1,4 +1,4 @@
-"""The one compiled map read: bilinear (value and gradient) and nearest-node look-ups.
+"""The one compiled map read: bilinear (value and gradient), bicubic and nearest-node look-ups.
 
 Every reader of a :class:`~geofix.maps.grid.Grid` -- ``Grid.sample``, the sensors, the
 matchers, the filters' measurement model -- goes through these numba kernels, so the
@@ -15,7 +15,16 @@ map is interpolated one way everywhere. Conventions (those of ``Grid.sample``):
   ``d/dy = ((v10 - v00) (1 - fc) + (v11 - v01) fc) / dy`` (one-sided at cell edges, like
   the interpolant itself);
 - **nearest** rounds ``col`` and ``row`` half-to-even (``numpy.rint``) and reads NaN
-  outside the grid.
+  outside the grid;
+- **bicubic** is Keys' cubic convolution (R. G. Keys, "Cubic convolution interpolation
+  for digital image processing", IEEE Trans. ASSP 29(6), 1981) with ``a = -0.5``, which
+  reproduces polynomials up to degree two exactly: the weights of the ``4 x 4`` cells
+  around the bilinear stencil cell at fraction ``t`` are ``(-t^3 + 2 t^2 - t) / 2``,
+  ``(3 t^3 - 5 t^2 + 2) / 2``, ``(-3 t^3 + 4 t^2 + t) / 2``, ``(t^3 - t^2) / 2``. The
+  NaN rules are the bilinear ones: NaN outside ``0 <= col <= nx - 1`` (rows likewise) and
+  NaN when any of the stencil's cells is no-data. Where the stencil reaches one cell past
+  the edge, that cell is Keys' boundary extrapolation ``f(-1) = 3 f(0) - 3 f(1) + f(2)``
+  (exact for quadratics); a grid of fewer than three cells along an axis is read bilinear.
 
 The scalar kernels :func:`bilinear_at`, :func:`stencil` and :func:`nearest_at` are
 numba functions that other compiled kernels (TERCOM, IOAP) call inline. Values may be
@@ -69,11 +78,72 @@ def nearest_at(values, c, r):  # pragma: no cover - compiled
     return values[int(ir), int(ic)] * 1.0
 
 
+@numba.njit(cache=True, nogil=True)
+def keys_weights(t):  # pragma: no cover - compiled
+    """Keys (a = -0.5) weights of the cells at offsets -1, 0, 1, 2 for fraction ``t``."""
+    t2 = t * t
+    t3 = t2 * t
+    return (
+        0.5 * (-t3 + 2.0 * t2 - t),
+        0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
+        0.5 * (-3.0 * t3 + 4.0 * t2 + t),
+        0.5 * (t3 - t2),
+    )
+
+
+@numba.njit(cache=True, nogil=True)
+def _cubic_row(values, r, c0, w0, w1, w2, w3, nx):  # pragma: no cover - compiled
+    """Cubic combination along row ``r`` of columns ``c0 - 1 .. c0 + 2`` (edge-extrapolated)."""
+    v1 = values[r, c0] * 1.0
+    v2 = values[r, c0 + 1] * 1.0
+    v0 = values[r, c0 - 1] * 1.0 if c0 >= 1 else 3.0 * v1 - 3.0 * v2 + values[r, c0 + 2]
+    last = c0 + 2 <= nx - 1
+    v3 = values[r, c0 + 2] * 1.0 if last else 3.0 * v2 - 3.0 * v1 + values[r, c0 - 1]
+    return w0 * v0 + w1 * v1 + w2 * v2 + w3 * v3
+
+
+@numba.njit(cache=True, nogil=True)
+def bicubic_at(values, c, r):  # pragma: no cover - compiled
+    """Keys bicubic value at fractional cell ``(c, r)``; NaN off the grid or on no-data."""
+    ny, nx = values.shape
+    if nx < 3 or ny < 3:
+        return bilinear_at(values, c, r)
+    inside, c0, r0, fc, fr = stencil(c, r, nx, ny)
+    if not inside:
+        return np.nan
+    a0, a1, a2, a3 = keys_weights(fc)
+    h1 = _cubic_row(values, r0, c0, a0, a1, a2, a3, nx)
+    h2 = _cubic_row(values, r0 + 1, c0, a0, a1, a2, a3, nx)
+    if r0 >= 1:
+        h0 = _cubic_row(values, r0 - 1, c0, a0, a1, a2, a3, nx)
+    else:
+        h0 = 3.0 * h1 - 3.0 * h2 + _cubic_row(values, r0 + 2, c0, a0, a1, a2, a3, nx)
+    if r0 + 2 <= ny - 1:
+        h3 = _cubic_row(values, r0 + 2, c0, a0, a1, a2, a3, nx)
+    else:
+        h3 = 3.0 * h2 - 3.0 * h1 + _cubic_row(values, r0 - 1, c0, a0, a1, a2, a3, nx)
+    b0, b1, b2, b3 = keys_weights(fr)
+    return b0 * h0 + b1 * h1 + b2 * h2 + b3 * h3
+
+
 # ----------------------------------------------------------------------------- array kernels
 @numba.njit(cache=True, nogil=True)
 def _bilinear_xy(values, x0, y0, dx, dy, x, y, out):  # pragma: no cover - compiled
     for i in range(x.shape[0]):
         out[i] = bilinear_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
+
+
+@numba.njit(cache=True, nogil=True)
+def _bicubic_xy(values, x0, y0, dx, dy, x, y, out):  # pragma: no cover - compiled
+    for i in range(x.shape[0]):
+        out[i] = bicubic_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
+
+
+@numba.njit(cache=True, nogil=True)
+def _bicubic_beams(values, col, row, bcol, brow, out):  # pragma: no cover - compiled
+    for i in range(col.shape[0]):
+        for b in range(bcol.shape[0]):
+            out[i, b] = bicubic_at(values, col[i] + bcol[b], row[i] + brow[b])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -144,7 +214,7 @@ def read_xy(
         Centre of cell ``[0, 0]`` and cell size, metres.
     x, y : array_like
         Eastings and northings, metres; broadcastable shapes.
-    method : {"bilinear", "nearest"}
+    method : {"bilinear", "bicubic", "nearest"}
         Interpolation.
 
     Returns
@@ -152,9 +222,12 @@ def read_xy(
     numpy.ndarray
         float64 values of the broadcast shape of ``x`` and ``y``.
     """
-    kernel = {"bilinear": _bilinear_xy, "nearest": _nearest_xy}.get(method)
+    kernels = {"bilinear": _bilinear_xy, "bicubic": _bicubic_xy, "nearest": _nearest_xy}
+    kernel = kernels.get(method)
     if kernel is None:
-        raise ValueError(f"unknown sampling method {method!r}; use 'bilinear' or 'nearest'")
+        raise ValueError(
+            f"unknown sampling method {method!r}; use 'bilinear', 'bicubic' or 'nearest'"
+        )
     x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
     out = np.empty(x.size)
     kernel(_map_values(values), float(x0), float(y0), float(dx), float(dy), _flat(x), _flat(y), out)
@@ -233,4 +306,28 @@ def bilinear_beams(
     bcol, brow = _flat(beam_col), _flat(beam_row)
     out = np.empty((col.size, bcol.size))
     _bilinear_beams(_map_values(values), col, row, bcol, brow, out)
+    return out
+
+
+READS = ("bilinear", "bicubic")
+"""Interpolations a model of the map may use (:attr:`geofix.maps.grid.Grid.interpolation`)."""
+
+
+def read_beams(
+    values: ArrayLike,
+    col: ArrayLike,
+    row: ArrayLike,
+    beam_col: ArrayLike,
+    beam_row: ArrayLike,
+    method: str = "bilinear",
+) -> np.ndarray:
+    """:func:`bilinear_beams` or its bicubic twin (``method``), same arguments and result."""
+    if method == "bilinear":
+        return bilinear_beams(values, col, row, beam_col, beam_row)
+    if method != "bicubic":
+        raise ValueError(f"unknown map read {method!r}; use one of {READS}")
+    col, row = _flat(col), _flat(row)
+    bcol, brow = _flat(beam_col), _flat(beam_row)
+    out = np.empty((col.size, bcol.size))
+    _bicubic_beams(_map_values(values), col, row, bcol, brow, out)
     return out

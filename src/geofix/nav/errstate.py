@@ -66,7 +66,7 @@ measurement ``v_INS - v_DVL = dv - bd + noise`` (noise variance
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -202,6 +202,8 @@ class ErrorState:
         ``(2, d)`` map to ``v_INS - v_DVL`` when a DVL aids a free INS, m/s.
     velocity_noise_var : float
         Per-axis variance of that measurement, m^2/s^2.
+    online_velocity : numpy.ndarray or None
+        ``(2,)`` step velocity of the last step built online (:func:`step_matrices`), m/s.
     """
 
     model: InsErrorModel
@@ -212,6 +214,7 @@ class ErrorState:
     position_map: np.ndarray
     velocity_map: np.ndarray | None = None
     velocity_noise_var: float = 0.0
+    online_velocity: np.ndarray | None = None
 
     @property
     def dim(self) -> int:
@@ -450,3 +453,51 @@ def propagate_cov(es: ErrorState) -> np.ndarray:
         p = es.transitions[k] @ p @ es.transitions[k].T + es.process_cov[k]
         out[k + 1] = p
     return out
+
+
+# --------------------------------------------------------------------------- online steps
+def step_matrices(es: ErrorState, k: int, displacement, dt: float, position_var=0.0) -> tuple:
+    """``(es, F_k, Q_k)`` of step ``k``: the precomputed ones, or built from the motion.
+
+    A filter that runs beyond the track its error state was built on (an online
+    navigator starts on a one-sample track) gets the step from the indicated
+    ``displacement`` (metres) over ``dt`` (seconds), as :func:`error_state` would have
+    built it: the step velocity ``u = displacement / dt`` and, in free mode, the
+    velocity change since the previous online step (zero at the first one, as
+    ``u_0 = u_1`` in :func:`step_velocities`). The returned error state carries that
+    velocity for the next step (:attr:`ErrorState.online_velocity`). An online step's
+    process noise also gains ``position_var`` on each position axis: the navigator's
+    per-step position noise (``Motion.process_var``), which stands for what the linear
+    model leaves out (unmodelled motion, the map's and the interpolation's error).
+
+    Parameters
+    ----------
+    es : ErrorState
+        The error model.
+    k : int
+        Step index (``x_{k+1} = F_k x_k + w_k``).
+    displacement : array_like
+        ``(2,)`` indicated displacement over the step, metres.
+    dt : float
+        Step duration, seconds (0: no motion, ``F = I``, ``Q = 0``).
+    position_var : float
+        Per-axis position variance added to an online step's ``Q``, m^2.
+
+    Returns
+    -------
+    tuple
+        ``(ErrorState, (d, d) F_k, (d, d) Q_k)``.
+    """
+    if k < es.transitions.shape[0]:
+        return es, es.transitions[k], es.process_cov[k]
+    dt = float(dt)
+    d = es.dim
+    extra = np.zeros((d, d))
+    extra[0, 0] = extra[1, 1] = max(float(position_var), 0.0)
+    if dt <= 0.0:
+        return es, np.eye(d), extra
+    u = np.asarray(displacement, dtype=float) / dt
+    previous = u if es.online_velocity is None else es.online_velocity
+    build = _dvl_steps if es.model.mode == "dvl" else _free_steps
+    transitions, process = build(es.model, np.array([dt]), np.vstack([previous, u]))
+    return replace(es, online_velocity=u), transitions[0], process[0] + extra
