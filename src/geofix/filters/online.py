@@ -771,9 +771,10 @@ class OnlineFilter:
             if abs(angle) >= 0.5 * np.pi:
                 raise InputError(f"ping: {name} must be within +-90 degrees, got {angle:g} rad")
             attitude.append(angle)
+        roll_rad, pitch_rad = attitude
         if beams.shape[1] == 4:
-            return level_offsets(beams[:, :3], *attitude, mount)[:, :2], values
-        lever = level_offsets(np.zeros((1, 3)), *attitude, mount)[0, :2]
+            return level_offsets(beams[:, :3], roll_rad, pitch_rad, mount)[:, :2], values
+        lever = level_offsets(np.zeros((1, 3)), roll_rad, pitch_rad, mount)[0, :2]
         return beams[:, :2] + lever, values
 
     def _beams(self, beams) -> np.ndarray:
