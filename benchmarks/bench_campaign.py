@@ -81,18 +81,15 @@ import sys, time
 from pathlib import Path
 from geofix.evaluate import campaign
 from geofix.sim.scenario import load_scenario
+T0 = time.perf_counter()
 first = []
-advance = campaign._Bar.advance
-def timed_advance(self, n):
-    if not first:
+def progress(done, total):
+    if done and not first:
         first.append(time.perf_counter())
         print(f"FIRST {{first[0] - T0:.3f}}", flush=True)
-    advance(self, n)
-campaign._Bar.advance = timed_advance
-T0 = time.perf_counter()
 scen = load_scenario(Path({scenario!r}))
 campaign.run_campaign(scen, ["tercom:window_sigma=3"], trials={trials}, jobs={jobs},
-                      out_dir={out!r}, progress=False)
+                      out_dir={out!r}, progress=progress)
 print(f"DONE {{time.perf_counter() - T0:.3f}}", flush=True)
 """
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from geofix.errors import MapError
 from geofix.maps.grid import Grid
+from geofix.maps.io import float32_rounding
 
 FLOAT32_SHARE_OF_NOISE = 0.01
 """Largest float32 rounding error allowed, as a share of the sensor noise 1-sigma: the
@@ -57,12 +58,20 @@ def storage_dtype(values: np.ndarray, noise_std: float) -> np.dtype:
     numpy.dtype
         ``float32`` or ``float64``.
     """
-    if noise_std <= 0 or values.dtype == np.float32:
-        return np.dtype(values.dtype if values.dtype == np.float32 else np.float64)
-    peak = float(np.nanmax(np.abs(values)))
-    # float32 has a 24-bit significand: rounding error at most 2**-24 of the magnitude
-    worst = peak * 2.0**-24
-    return np.dtype(np.float32 if worst <= FLOAT32_SHARE_OF_NOISE * noise_std else np.float64)
+    if values.dtype == np.float32:
+        return np.dtype(np.float32)
+    within = float32_within(noise_std)
+    if within is None:
+        return np.dtype(np.float64)
+    # the largest magnitude from two reductions: no full-map temporary such as |values|
+    low, high = np.fmin.reduce(values, axis=None), np.fmax.reduce(values, axis=None)
+    peak = max(abs(float(low)), abs(float(high))) if high == high else 0.0
+    return np.dtype(np.float32 if float32_rounding(peak) <= within else np.float64)
+
+
+def float32_within(noise_std: float) -> float | None:
+    """The float32 rounding allowed for a sensor noise, map units (None: keep float64)."""
+    return FLOAT32_SHARE_OF_NOISE * float(noise_std) if noise_std > 0 else None
 
 
 class SharedGrid:

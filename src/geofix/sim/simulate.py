@@ -27,13 +27,16 @@ from geofix.sim.sensing import measure_with_unlagged
 from geofix.sim.trial import Trial
 
 
-def prepare_map(scenario: Scenario) -> Grid:
+def prepare_map(scenario: Scenario, float32_within: float | None = None) -> Grid:
     """Load and prepare the scenario's map (cut, project, resample) as a :class:`Grid`.
 
     Parameters
     ----------
     scenario : Scenario
         Its ``map`` block says which file, variable, kind, region and cell size (metres).
+    float32_within : float, optional
+        Store the values in float32 when that rounds none by more than this, map units
+        (see :func:`geofix.maps.io.load_grid`); default float64.
 
     Returns
     -------
@@ -56,6 +59,7 @@ def prepare_map(scenario: Scenario) -> Grid:
         kind=spec.kind,
         region=spec.region,
         resample_m=spec.resample_m,
+        float32_within=float32_within,
     )
 
 
