@@ -42,10 +42,13 @@ def make_map(path: Path, cells: int, seed: int = 0) -> Path:
 
     rng = np.random.default_rng(seed)
     axis = np.arange(cells) * 100.0
+    terms = [(rng.uniform(2e-4, 2e-3, 2), rng.normal(0, 10), rng.uniform(0, 6)) for _ in range(6)]
     z = np.zeros((cells, cells))
-    for _ in range(6):  # separable terms: no temporary larger than the map itself
-        kx, ky = rng.uniform(2e-4, 2e-3, 2)
-        z += rng.normal(0, 10) * np.outer(np.cos(ky * axis + rng.uniform(0, 6)), np.sin(kx * axis))
+    step = max(1, 2**22 // cells)
+    for r0 in range(0, cells, step):  # separable terms, a block of rows at a time
+        rows = axis[r0 : r0 + step]
+        for (kx, ky), amplitude, phase in terms:
+            z[r0 : r0 + step] += amplitude * np.outer(np.cos(ky * rows + phase), np.sin(kx * axis))
     save_grid(Grid(z, 0.0, 0.0, 100.0, 100.0, kind="gravity", units="mGal", name="synth"), path)
     return path
 
