@@ -91,3 +91,28 @@ def test_infinite_cells_are_found_block_by_block(tmp_path, small_blocks):
     path = _descending_netcdf(tmp_path / "d.nc", values)
     with pytest.raises(Exception, match=r"1 cells are infinite \(first at row 16, column 15\)"):
         load_grid(path)
+
+
+def test_saved_grid_read_with_netcdf4_alone_equals_the_xarray_read(tmp_path, monkeypatch):
+    values = _field()
+    meta = {"source": "test", "shape": [37, 23]}
+    grid = Grid(values, 10.0, -5.0, 50.0, 25.0, kind="gravity", units="mGal", meta=meta)
+    path = save_grid(grid, tmp_path / "g.nc")
+    direct = load_grid(path, float32_within=1.0)
+    monkeypatch.setattr(io, "_read_saved_netcdf4", lambda *args: None)
+    through_xarray = load_grid(path, float32_within=1.0)
+    np.testing.assert_array_equal(direct.values, through_xarray.values)
+    assert direct.values.dtype == through_xarray.values.dtype == np.float32
+    fields = ("x0", "y0", "dx", "dy", "kind", "units", "name", "meta")
+    assert [getattr(direct, f) for f in fields] == [getattr(through_xarray, f) for f in fields]
+
+
+def test_packed_saved_grid_is_left_to_xarray(tmp_path):
+    grid = Grid(_field(), 0.0, 0.0, 50.0, 50.0)
+    path = save_grid(grid, tmp_path / "g.nc")
+    with xr.open_dataset(path) as ds:
+        packed = ds.load()
+    packed["z"].encoding.update(dtype="int32", scale_factor=0.01, _FillValue=-(2**31))
+    packed.to_netcdf(tmp_path / "p.nc")
+    assert io._read_saved_netcdf4(tmp_path / "p.nc", "p", None) is None
+    np.testing.assert_allclose(load_grid(tmp_path / "p.nc").values, grid.values, atol=0.006)

@@ -272,10 +272,13 @@ def _open_netcdf(path: Path, source: str):
 
 
 def _read_netcdf(path: Path, variable: str | None, source: str, float32_within=None) -> _Raw:
+    saved = _read_saved_netcdf4(path, source, float32_within)
+    if saved is not None:
+        return saved
     ds = _open_netcdf(path, source)
     with ds:
         if int(ds.attrs.get("geofix_grid", 0)) == 1:
-            return _saved_raw(ds, source, float32_within)
+            return _saved_raw(ds.attrs, ds["z"], source, float32_within)
         var = _pick_variable(ds, variable, source)
         da = _as_yx(ds[var], source)
         xname, yname = da.dims[1], da.dims[0]
@@ -390,7 +393,8 @@ def _numbers(
     peak = 0.0
     for r0 in range(0, ny, step):
         r1 = min(r0 + step, ny)
-        block = np.asarray(da[r0:r1].values, dtype=float)
+        block = da[r0:r1]
+        block = np.asarray(getattr(block, "values", block), dtype=float)
         if flips[0]:
             block = block[:, ::-1]
         if flips[1]:
@@ -420,10 +424,58 @@ def _is_geographic(xname: str, yname: str, xattrs: dict, yattrs: dict, x, y) -> 
     return bool(in_range and fine)
 
 
-def _saved_raw(ds, source: str, float32_within: float | None = None) -> _Raw:
-    """A grid written by :func:`save_grid`, geometry taken from its attributes."""
-    a = ds.attrs
-    values = _numbers(ds["z"], "variable 'z'", source, (False, False), float32_within)
+def _read_saved_netcdf4(path: Path, source: str, float32_within=None) -> _Raw | None:
+    """A grid written by :func:`save_grid`, read with netCDF4 alone; None if it is not one.
+
+    Importing xarray (and dask, which xarray looks for) takes longer than reading a map
+    of a few million cells; geofix's own files have a known layout (variable ``z`` of
+    floats, unpacked, NaN or no fill value), read here as xarray would decode them.
+    """
+    try:
+        import netCDF4
+    except ImportError:  # pragma: no cover - a dependency of the netCDF reader
+        return None
+    try:
+        ds = netCDF4.Dataset(path, "r")
+    except OSError:
+        return None
+    with ds:
+        attrs = {name: ds.getncattr(name) for name in ds.ncattrs()}
+        var = ds.variables.get("z")
+        if int(attrs.get("geofix_grid", 0)) != 1 or var is None or not _plain_floats(var):
+            return None
+        var.set_auto_maskandscale(False)
+        return _saved_raw(attrs, _Rows(var), source, float32_within)
+
+
+def _plain_floats(var) -> bool:
+    """A 2-D float variable stored as it is decoded: no packing, no fill value but NaN."""
+    names = set(var.ncattrs())
+    if names & {"scale_factor", "add_offset", "missing_value", "valid_min", "valid_max"}:
+        return False
+    if "valid_range" in names or var.dtype.kind != "f" or var.ndim != 2:
+        return False
+    return "_FillValue" not in names or bool(np.isnan(var.getncattr("_FillValue")))
+
+
+class _Rows:
+    """A netCDF4 variable as :func:`_numbers` reads it: dtype, shape, blocks of rows."""
+
+    def __init__(self, var) -> None:
+        self._var = var
+        self.dtype = var.dtype
+        self.shape = tuple(int(n) for n in var.shape)
+        self.ndim = len(self.shape)
+        self.size = int(np.prod(self.shape))
+        self.sizes = dict(zip(var.dimensions, self.shape, strict=True))
+
+    def __getitem__(self, rows) -> np.ndarray:
+        return np.asarray(self._var[rows])
+
+
+def _saved_raw(a: dict, z, source: str, float32_within: float | None = None) -> _Raw:
+    """A grid written by :func:`save_grid`: its attributes ``a`` and its variable ``z``."""
+    values = _numbers(z, "variable 'z'", source, (False, False), float32_within)
     ny, nx = values.shape
     x = float(a["x0"]) + float(a["dx"]) * np.arange(nx)
     y = float(a["y0"]) + float(a["dy"]) * np.arange(ny)
