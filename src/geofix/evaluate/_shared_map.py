@@ -1,17 +1,21 @@
-"""One read-only copy of the map for every local worker process (POSIX shared memory).
+"""One read-only copy of the map for every spawned worker process (POSIX shared memory).
 
-The calling process copies the prepared map's values once into a shared-memory block
-and hands the workers a small picklable :class:`SharedGridHandle`; each worker maps the
-block read-only and wraps it in a :class:`~geofix.maps.grid.Grid` without copying, so a
-campaign with ``k`` local workers holds the map twice (the calling process's copy and
-the shared one), not ``k + 1`` times.
+Forked workers need none of this: they inherit the calling process's read-only map,
+whose pages stay shared (the map is held once). For spawned workers the calling process
+copies the prepared map's values once into a shared-memory block and hands the workers
+a small picklable :class:`SharedGridHandle`; each worker maps the block read-only and
+wraps it in a :class:`~geofix.maps.grid.Grid` without copying, so such a campaign with
+``k`` local workers holds the map twice (the calling process's copy and the shared
+one), not ``k + 1`` times.
 
 Storage precision: :func:`storage_dtype` keeps float32 when rounding the map to float32
 changes no value by more than :data:`FLOAT32_SHARE_OF_NOISE` of the sensor noise (a
 depth of 11 km rounds by at most 0.66 mm, so any depth sensor noisier than 6.6 cm; a
 gravity anomaly of 500 mGal by at most 3e-5 mGal), else float64. The same (possibly
 rounded) map is used by every backend, inline included, so a campaign's table does not
-depend on the number of jobs.
+depend on the number of jobs. A metric netCDF map is read straight into that precision
+(:func:`geofix.maps.io.load_grid` with ``float32_within`` = :func:`float32_within`), the
+same values as rounding a float64 read.
 """
 
 from __future__ import annotations

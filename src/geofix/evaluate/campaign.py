@@ -227,19 +227,20 @@ def run_campaign(
         n_tasks, n_results = _pending_count(parsed, scenario.trials, done_keys)
         tasks = _pending_tasks(parsed, scenario.trials, done_keys)
         backend = _backend(jobs, scheduler, n_tasks)
-        results = backend(simulate.simulate_trial, scenario, grid, tasks)
         computed = 0
-        bounds = _open_bounds(store.path)
         report = progress or _no_progress
         total = n_results
-        report(0, total)
-        with closing(bounds), closing(results):
-            for done, info in results:
-                for spec, index, result in done:
-                    store.record(scenario.name, shash, spec, index, result)
-                _record_info(bounds, shash, info)
-                computed += len(done)
-                report(computed, total)
+        with closing(_open_bounds(store.path)) as bounds:
+            # local workers start here, before the first report (a progress bar's thread)
+            results = backend(simulate.simulate_trial, scenario, grid, tasks)
+            with closing(results):
+                report(0, total)
+                for done, info in results:
+                    for spec, index, result in done:
+                        store.record(scenario.name, shash, spec, index, result)
+                    _record_info(bounds, shash, info)
+                    computed += len(done)
+                    report(computed, total)
             infos = _all_infos(bounds, shash, scenario, grid, simulate.simulate_trial)
         frame = _campaign_frame(store.to_frame(shash, arrays=True), list(parsed), scenario.trials)
     frame = _with_integrity(frame, infos)
