@@ -220,7 +220,8 @@ def _campaign(f: dict) -> str:
             f"{_met(s['speedup'] >= goals['speedup'])}",
         ],
         [
-            f"{s['trials']} trials, CPU time with workers, --jobs 1 / --jobs 2 (median)",
+            f"{s['trials']} trials, CPU time after imports, workers included, "
+            "--jobs 1 / --jobs 2 (median)",
             f"{np.median(s['jobs1_cpu_s']):.2f} s / {np.median(s['jobs2_cpu_s']):.2f} s",
             "the cost of a second worker",
         ],
