@@ -29,15 +29,16 @@ pytestmark = pytest.mark.slow
 
 METHODS = ("tercom", "tercom:metric=mad")
 TRIALS = 10
+CTRL_C_TRIALS = 1000
 KILLS = 2
 ORPHAN_GRACE_S = 5.0
 
 
-def _command(scenario: Path, out: Path) -> list[str]:
+def _command(scenario: Path, out: Path, trials: int = TRIALS) -> list[str]:
     cmd = [sys.executable, "-m", "geofix", "run", str(scenario), "--jobs", "2"]
     for spec in METHODS:
         cmd += ["-m", spec]
-    return [*cmd, "--trials", str(TRIALS), "--out", str(out), "--json"]
+    return [*cmd, "--trials", str(trials), "--out", str(out), "--json"]
 
 
 def _env() -> dict:
@@ -127,7 +128,8 @@ def test_sigkill_at_random_points_then_rerun_gives_the_same_table(tmp_path, smal
 
 
 def test_ctrl_c_prints_one_line_without_worker_tracebacks(tmp_path):
-    cmd = _command(_scenario(tmp_path), tmp_path / "out")
+    # enough trials that forked workers (which start at once) are still busy after 1 s
+    cmd = _command(_scenario(tmp_path), tmp_path / "out", trials=CTRL_C_TRIALS)
     proc = subprocess.Popen(
         cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
     )

@@ -12,6 +12,7 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 from _common import OUT, ROOT, fmt, md_table
 
 TITLE = "Performance — TERCOM, map read, GA-SCA and campaigns against their yardsticks"
@@ -176,51 +177,89 @@ def _ga(f: dict) -> str:
     )
 
 
+def _seconds(value) -> str:
+    return "-" if value is None else f"{value:.1f} s"
+
+
+def _met(ok: bool) -> str:
+    return "met" if ok else "**not met**"
+
+
 def _campaign(f: dict) -> str:
     c = f.get("campaign")
     if not c:
         return ""
     gb = 1e9
+    goals = c["goals"]
     m1, m2 = c["memory_jobs1"], c["memory_jobs2"]
+    worst_cell = max(m1["bytes_per_cell"], m2["bytes_per_cell"])
     s = c["scaling"]
-    u = c["startup"]
+    lo, hi = s["speedup_spread"]
     rows = [
         [
             "peak memory, --jobs 1",
-            f"{m1['peak_pss_bytes'] / gb:.2f} GB",
-            f"{m1['bytes_per_cell']:.1f} B/cell",
+            f"{m1['peak_pss_bytes'] / gb:.2f} GB, {m1['bytes_per_cell']:.1f} B/cell",
+            f"≤ {goals['bytes_per_cell']:.0f} B/cell: "
+            f"{_met(m1['bytes_per_cell'] <= goals['bytes_per_cell'])}",
         ],
         [
             "peak memory, --jobs 2",
-            f"{m2['peak_pss_bytes'] / gb:.2f} GB",
-            f"{m2['bytes_per_cell']:.1f} B/cell",
-        ],
-        ["2 workers / 1 worker", fmt(c["memory_ratio"]), "goal ≤ 1.2"],
-        [
-            "40 trials, --jobs 1 / --jobs 2 wall time",
-            f"{s['jobs1']['wall_s']:.1f} s / {s['jobs2']['wall_s']:.1f} s",
-            f"speed-up {s['speedup']:.2f} (goal ≥ 1.7)",
+            f"{m2['peak_pss_bytes'] / gb:.2f} GB, {m2['bytes_per_cell']:.1f} B/cell",
+            f"≤ {goals['bytes_per_cell']:.0f} B/cell: "
+            f"{_met(worst_cell <= goals['bytes_per_cell'])}",
         ],
         [
-            "--trials 1000000: first result after",
-            "-" if u["first_result_s"] is None else f"{u['first_result_s']:.1f} s",
-            "goal ≤ 10 s",
+            "peak memory, 2 workers / 1 worker",
+            fmt(c["memory_ratio"]),
+            f"≤ {goals['memory_ratio']}: {_met(c['memory_ratio'] <= goals['memory_ratio'])}",
         ],
         [
-            "--trials 1000000: peak memory over the first 30 s",
-            f"{u['peak_pss_bytes'] / gb:.2f} GB",
-            "goal < 1 GB",
+            f"{s['trials']} trials, --jobs 1 / --jobs 2 wall time (median)",
+            f"{np.median(s['jobs1_wall_s']):.1f} s / {np.median(s['jobs2_wall_s']):.1f} s",
+            f"speed-up {s['speedup']:.2f} ({lo:.2f}–{hi:.2f}), goal ≥ {goals['speedup']}: "
+            f"{_met(s['speedup'] >= goals['speedup'])}",
+        ],
+        [
+            f"{s['trials']} trials, CPU time after imports, workers included, "
+            "--jobs 1 / --jobs 2 (median)",
+            f"{np.median(s['jobs1_cpu_s']):.2f} s / {np.median(s['jobs2_cpu_s']):.2f} s",
+            "the cost of a second worker",
         ],
     ]
+    for jobs in (1, 2):
+        u = c["startup"][f"jobs{jobs}"]
+        started = u["first_result_from_start_s"]
+        rows.append(
+            [
+                f"--trials 1000000 --jobs {jobs}: first result after "
+                f"(imports {_seconds(u['import_s'])})",
+                _seconds(started),
+                f"≤ {goals['startup_s']:.0f} s: "
+                f"{_met(started is not None and started <= goals['startup_s'])}",
+            ]
+        )
+        rows.append(
+            [
+                f"--trials 1000000 --jobs {jobs}: peak memory while watched",
+                f"{u['peak_pss_bytes'] / gb:.2f} GB",
+                f"< 1 GB: {_met(u['peak_pss_bytes'] < goals['startup_peak_bytes'])}",
+            ]
+        )
     side = c["cells"]
     return (
         f"### Campaigns: a {side} × {side} synthetic map\n\n"
-        "Memory is the peak proportional set size (shared pages split between the processes "
-        "mapping them) summed over the calling process and its workers, sampled every "
-        "50 ms; each campaign runs in a fresh process. The map side is scaled down from "
-        "10 000 on this shared machine; per-cell figures include each process's fixed "
-        "interpreter and library footprint, which weighs more on a smaller map.\n\n"
-        + md_table(["figure", "value", "per cell / goal"], rows)
+        "Yardsticks: the same campaign with `--jobs 1`, and the map's own size. Memory is "
+        "the peak proportional set size (shared pages split between the processes mapping "
+        "them) summed over the calling process and its workers, sampled every 50 ms; each "
+        "campaign runs in a fresh process. The map file holds float64 values; it is read "
+        "by blocks of rows straight into float32 (the campaign's storage precision) and "
+        "forked workers share its pages, so no full float64 copy and no second copy exist. "
+        "Workers are forked (they start in milliseconds with everything imported) where "
+        "that is safe, else spawned. Wall times are those of a machine whose two cores are "
+        "shared with other jobs: the 40-trial campaign needs under a second of CPU, so its "
+        "ratio moves with the load; the spread of three alternating pairs is in "
+        "brackets. Start-up times include the interpreter and its imports.\n\n"
+        + md_table(["figure", "value", "goal"], rows)
     )
 
 

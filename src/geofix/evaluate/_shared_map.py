@@ -1,17 +1,21 @@
-"""One read-only copy of the map for every local worker process (POSIX shared memory).
+"""One read-only copy of the map for every spawned worker process (POSIX shared memory).
 
-The calling process copies the prepared map's values once into a shared-memory block
-and hands the workers a small picklable :class:`SharedGridHandle`; each worker maps the
-block read-only and wraps it in a :class:`~geofix.maps.grid.Grid` without copying, so a
-campaign with ``k`` local workers holds the map twice (the calling process's copy and
-the shared one), not ``k + 1`` times.
+Forked workers need none of this: they inherit the calling process's read-only map,
+whose pages stay shared (the map is held once). For spawned workers the calling process
+copies the prepared map's values once into a shared-memory block and hands the workers
+a small picklable :class:`SharedGridHandle`; each worker maps the block read-only and
+wraps it in a :class:`~geofix.maps.grid.Grid` without copying, so such a campaign with
+``k`` local workers holds the map twice (the calling process's copy and the shared
+one), not ``k + 1`` times.
 
 Storage precision: :func:`storage_dtype` keeps float32 when rounding the map to float32
 changes no value by more than :data:`FLOAT32_SHARE_OF_NOISE` of the sensor noise (a
 depth of 11 km rounds by at most 0.66 mm, so any depth sensor noisier than 6.6 cm; a
 gravity anomaly of 500 mGal by at most 3e-5 mGal), else float64. The same (possibly
 rounded) map is used by every backend, inline included, so a campaign's table does not
-depend on the number of jobs.
+depend on the number of jobs. A metric netCDF map is read straight into that precision
+(:func:`geofix.maps.io.load_grid` with ``float32_within`` = :func:`float32_within`), the
+same values as rounding a float64 read.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ import numpy as np
 
 from geofix.errors import MapError
 from geofix.maps.grid import Grid
+from geofix.maps.io import float32_rounding
 
 FLOAT32_SHARE_OF_NOISE = 0.01
 """Largest float32 rounding error allowed, as a share of the sensor noise 1-sigma: the
@@ -57,12 +62,20 @@ def storage_dtype(values: np.ndarray, noise_std: float) -> np.dtype:
     numpy.dtype
         ``float32`` or ``float64``.
     """
-    if noise_std <= 0 or values.dtype == np.float32:
-        return np.dtype(values.dtype if values.dtype == np.float32 else np.float64)
-    peak = float(np.nanmax(np.abs(values)))
-    # float32 has a 24-bit significand: rounding error at most 2**-24 of the magnitude
-    worst = peak * 2.0**-24
-    return np.dtype(np.float32 if worst <= FLOAT32_SHARE_OF_NOISE * noise_std else np.float64)
+    if values.dtype == np.float32:
+        return np.dtype(np.float32)
+    within = float32_within(noise_std)
+    if within is None:
+        return np.dtype(np.float64)
+    # the largest magnitude from two reductions: no full-map temporary such as |values|
+    low, high = np.fmin.reduce(values, axis=None), np.fmax.reduce(values, axis=None)
+    peak = max(abs(float(low)), abs(float(high))) if high == high else 0.0
+    return np.dtype(np.float32 if float32_rounding(peak) <= within else np.float64)
+
+
+def float32_within(noise_std: float) -> float | None:
+    """The float32 rounding allowed for a sensor noise, map units (None: keep float64)."""
+    return FLOAT32_SHARE_OF_NOISE * float(noise_std) if noise_std > 0 else None
 
 
 class SharedGrid:

@@ -2,8 +2,10 @@
 
 The map is loaded and prepared once, in the calling process, stored in float32 when
 that rounds no value by more than a hundredth of the sensor noise
-(:mod:`geofix.evaluate._shared_map`), and held once per machine: local workers map one
-read-only shared-memory copy, Dask workers get it by one broadcast ``scatter``. Tasks
+(:mod:`geofix.evaluate._shared_map`; a metric netCDF map is read straight into float32,
+block by block, never as a full float64 copy), and held once per machine: forked local
+workers share the calling process's read-only pages, spawned ones map one read-only
+shared-memory copy, Dask workers get it by one broadcast ``scatter``. Tasks
 are submitted a few per worker at a time, so memory does not grow with the number of
 trials. A task is one trial
 index with the methods still to run on it, so each trial is simulated once per task.
@@ -19,6 +21,19 @@ columns, on first use, and trials resumed without them are filled in by the call
 process). They give the summary's ``crlb_m`` (error-state bound), ``crlb_track_m``,
 ``crlb_rw_m`` (random-walk bound) and ``crlb_batch_m``, and the Mahalanobis distance of
 each end error used by the false-fix rule.
+
+Starting local workers (:func:`worker_start_method`): on Linux they are forked from the
+calling process when that is safe -- no other Python thread runs, and numba's threading
+layer is not started (``import geofix`` starts none) or is a fork-safe one (GNU OpenMP
+is not) -- and spawned otherwise. Measured on the 40-trial TERCOM
+benchmark (``benchmarks/bench_campaign.py``): a spawned worker spends seconds importing
+geofix, numpy, pandas, numba and pydantic and loading its compiled kernels before its
+first trial, longer than the whole campaign takes on one core, while a forked one starts
+in milliseconds with all of that inherited; a forkserver would still import once and
+its workers' parent is not the campaign's, which the parent-death watchdog relies on.
+The pool is started before the first progress report (a progress bar may start a
+thread). The start method does not change a result: every trial's generators depend
+only on the seed, the trial and the method.
 """
 
 from __future__ import annotations
@@ -31,6 +46,8 @@ import json
 import multiprocessing
 import os
 import sqlite3
+import sys
+import threading
 import warnings
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -158,9 +175,9 @@ def run_campaign(
         Override the scenario's number of trials and seed.
     jobs : int, optional
         Local worker processes (default: the number of CPUs); 1 runs in this process.
-        Ignored when ``scheduler`` is given. Workers are started with the ``spawn``
-        method: a script calling this with ``jobs > 1`` needs the usual
-        ``if __name__ == "__main__":`` guard.
+        Ignored when ``scheduler`` is given. Workers are forked where that is safe
+        (Linux, see :func:`worker_start_method`), else spawned: a script calling this
+        with ``jobs > 1`` needs the usual ``if __name__ == "__main__":`` guard.
     out_dir : str or pathlib.Path
         Folder of ``results.sqlite`` and ``summary.json``.
     scheduler : str or object, optional
@@ -200,7 +217,9 @@ def run_campaign(
     out = Path(out_dir)
     check_out_dir(out)
     simulate = importlib.import_module("geofix.sim.simulate")
-    grid = _shared_map.as_storage(simulate.prepare_map(scenario), scenario.sensor.noise_std)
+    noise = scenario.sensor.noise_std
+    grid = simulate.prepare_map(scenario, _shared_map.float32_within(noise))
+    grid = _shared_map.as_storage(grid, noise)
     check_methods_fit(parsed, simulate.simulate_trial(scenario, grid, 0))
     shash = scenario_hash(scenario)
     with ResultStore(out) as store:
@@ -208,19 +227,20 @@ def run_campaign(
         n_tasks, n_results = _pending_count(parsed, scenario.trials, done_keys)
         tasks = _pending_tasks(parsed, scenario.trials, done_keys)
         backend = _backend(jobs, scheduler, n_tasks)
-        results = backend(simulate.simulate_trial, scenario, grid, tasks)
         computed = 0
-        bounds = _open_bounds(store.path)
         report = progress or _no_progress
         total = n_results
-        report(0, total)
-        with closing(bounds), closing(results):
-            for done, info in results:
-                for spec, index, result in done:
-                    store.record(scenario.name, shash, spec, index, result)
-                _record_info(bounds, shash, info)
-                computed += len(done)
-                report(computed, total)
+        with closing(_open_bounds(store.path)) as bounds:
+            # local workers start here, before the first report (a progress bar's thread)
+            results = backend(simulate.simulate_trial, scenario, grid, tasks)
+            with closing(results):
+                report(0, total)
+                for done, info in results:
+                    for spec, index, result in done:
+                        store.record(scenario.name, shash, spec, index, result)
+                    _record_info(bounds, shash, info)
+                    computed += len(done)
+                    report(computed, total)
             infos = _all_infos(bounds, shash, scenario, grid, simulate.simulate_trial)
         frame = _campaign_frame(store.to_frame(shash, arrays=True), list(parsed), scenario.trials)
     frame = _with_integrity(frame, infos)
@@ -521,14 +541,63 @@ _WORKER_GRID: Grid | None = None
 # Tasks in flight per local worker: enough to keep every worker busy, few enough that
 # memory does not grow with the number of trials.
 _IN_FLIGHT_PER_WORKER = 4
+#: Environment variable forcing how local workers start: ``spawn``, or ``fork`` (still
+#: only where it is safe, see :func:`worker_start_method`). Unset: fork where safe.
+START_METHOD_ENV = "GEOFIX_START_METHOD"
+_START_METHODS = ("fork", "spawn")
+_FORK_SAFE_NUMBA_LAYERS = ("workqueue", "tbb")
 
 
-def _init_worker(handle: _shared_map.SharedGridHandle, parent_pid: int | None = None) -> None:
-    """Pool initializer: die with the parent; map the shared read-only map; one numba thread."""
+def worker_start_method() -> str:
+    """How local campaign workers are started now: ``"fork"`` or ``"spawn"``.
+
+    ``fork`` on Linux when no other Python thread runs and numba's threading layer is
+    not started or is fork-safe (:func:`_fork_is_safe`), else ``spawn``. ``GEOFIX_START_METHOD
+    =spawn`` always spawns.
+
+    Raises
+    ------
+    ConfigError
+        ``GEOFIX_START_METHOD`` is neither ``fork`` nor ``spawn``.
+    """
+    asked = os.environ.get(START_METHOD_ENV, "").strip().lower() or "fork"
+    if asked not in _START_METHODS:
+        raise ConfigError(f"{START_METHOD_ENV} must be one of {_START_METHODS}, got {asked!r}")
+    if asked == "spawn" or not sys.platform.startswith("linux"):
+        return "spawn"
+    return "fork" if _fork_is_safe() else "spawn"
+
+
+def _fork_is_safe() -> bool:
+    """No other Python thread, and no numba thread pool that a fork would break.
+
+    A fork copies only the calling thread: a lock another Python thread holds would stay
+    held in the child. numba's ``omp`` layer (GNU OpenMP) once started in the parent
+    -- by any parallel kernel run or loaded from the cache -- hangs the child's first
+    parallel kernel, even on one thread (measured); ``workqueue`` and ``tbb`` are
+    fork-safe. The native pools of OpenBLAS and jemalloc handle fork themselves.
+    """
+    if threading.active_count() > 1:
+        return False
+    parallel = sys.modules.get("numba.np.ufunc.parallel")
+    if parallel is None or not getattr(parallel, "_is_initialized", False):
+        return True
+    try:
+        return parallel.threading_layer() in _FORK_SAFE_NUMBA_LAYERS
+    except ValueError:  # pragma: no cover - initialized means a layer was chosen
+        return False
+
+
+def _init_worker(source, parent_pid: int | None = None) -> None:
+    """Pool initializer: die with the parent; take the map; one numba thread.
+
+    ``source`` is the map itself in a forked worker (its pages shared with the parent,
+    read-only) or a :class:`~geofix.evaluate._shared_map.SharedGridHandle` to map.
+    """
     global _WORKER_GRID
     if parent_pid is not None:
         bind_to_parent(parent_pid)
-    _WORKER_GRID = _shared_map.attach(handle)
+    _WORKER_GRID = source if isinstance(source, Grid) else _shared_map.attach(source)
     import numba
 
     numba.set_num_threads(1)
@@ -542,11 +611,23 @@ def _pool_task(simulate_trial, scenario, task) -> _Done:
 
 
 def _run_pool(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
-    """Local worker processes sharing one read-only copy of the map, bounded submission."""
-    context = multiprocessing.get_context("spawn")
-    with _shared_map.SharedGrid(grid, grid.values.dtype) as shared:
+    """Local worker processes sharing one read-only map; started now, results lazily."""
+    results = _pool_results(jobs, simulate_trial, scenario, grid, tasks)
+    next(results)  # workers start (and the first tasks go out) before any progress report
+    return results
+
+
+def _pool_results(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator:
+    """Yield None once the workers are started, then their results (bounded submission)."""
+    method = worker_start_method()
+    context = multiprocessing.get_context(method)
+    with contextlib.ExitStack() as stack:
+        if method == "fork":  # the workers inherit the map's pages: nothing to copy
+            source = grid
+        else:
+            source = stack.enter_context(_shared_map.SharedGrid(grid, grid.values.dtype)).handle
         pool = ProcessPoolExecutor(
-            jobs, context, initializer=_init_worker, initargs=(shared.handle, os.getpid())
+            jobs, context, initializer=_init_worker, initargs=(source, os.getpid())
         )
         finished = False
         try:
@@ -556,7 +637,11 @@ def _run_pool(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator[_Don
                     return pool.submit(_pool_task, simulate_trial, scenario, task)
 
             try:
-                yield from _bounded(submit, iter(tasks), jobs * _IN_FLIGHT_PER_WORKER)
+                tasks = iter(tasks)
+                limit = jobs * _IN_FLIGHT_PER_WORKER
+                pending = {submit(task) for task in itertools.islice(tasks, limit)}
+                yield None
+                yield from _drain(submit, tasks, pending)
             except BrokenProcessPool:
                 raise GeofixError(
                     "a worker process died (killed, or out of memory); finished trials are "
@@ -573,6 +658,11 @@ def _run_pool(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator[_Don
 def _bounded(submit: Callable, tasks: Iterator, limit: int) -> Iterator[_Done]:
     """Results of ``submit(task)`` futures, at most ``limit`` in flight, as they complete."""
     pending = {submit(task) for task in itertools.islice(tasks, limit)}
+    yield from _drain(submit, tasks, pending)
+
+
+def _drain(submit: Callable, tasks: Iterator, pending: set) -> Iterator[_Done]:
+    """Results of the ``pending`` futures as they complete, one new task per result."""
     while pending:
         finished, pending = wait(pending, return_when=FIRST_COMPLETED)
         for future in finished:

@@ -4,7 +4,18 @@
 and grids saved by :func:`save_grid`; it crops a region in the file's own coordinates,
 projects lon/lat grids to a local transverse-Mercator frame (see
 :mod:`geofix.maps.project`) and resamples. Heavy readers (xarray, rioxarray, h5py) are
-imported only when a file of their format is read.
+imported only when a file of their format is read; netCDF is opened with xarray's
+netCDF4 backend named directly, so xarray does not import every installed backend
+(rioxarray, and dask through it, cost seconds) to guess the engine.
+
+Memory: a netCDF map is read in blocks of rows (about :data:`READ_BLOCK_BYTES` each)
+into one array allocated, after a budget check (:func:`geofix.memory.check_allocation`),
+at its final size, orientation and precision. With ``float32_within`` a metric map that
+is neither projected nor resampled is stored in float32 when that rounds no value by
+more than the given amount; the values are then exactly ``float32(value)`` of the file's
+float64 values, as a conversion of the whole map would give, but without a full float64
+copy ever existing (peak: 4 bytes a cell plus one block). The no-data and infinity
+checks run block by block too, so no full-map mask is made.
 """
 
 from __future__ import annotations
@@ -30,6 +41,8 @@ DEFAULT_UNITS = {"depth": "m", "gravity": "mGal"}
 _GRAVITY_WORDS = ("grav", "mgal", "free-air", "free air", "freeair", "anomaly")
 _X_NAMES = ("x", "lon", "longitude", "long", "easting", "east")
 _Y_NAMES = ("y", "lat", "latitude", "northing", "north")
+#: Bytes of float64 read from a file at a time (a block of whole rows).
+READ_BLOCK_BYTES = 8 * 2**20
 
 
 @dataclass
@@ -57,6 +70,7 @@ def load_grid(
     region=None,
     resample_m: float | None = None,
     name: str | None = None,
+    float32_within: float | None = None,
 ) -> Grid:
     """Read a map file into a metric :class:`Grid`.
 
@@ -78,6 +92,11 @@ def load_grid(
         centre (the smaller axis); metric grids keep theirs.
     name : str, optional
         Map name (default: the builtin name or the file's stem).
+    float32_within : float, optional
+        Largest rounding error allowed for float32 storage, map units: a netCDF map
+        that is used as read (metric, no ``resample_m``) is stored in float32 when
+        :func:`float32_rounding` of its largest magnitude is within it, else in float64
+        (the default, None: float64).
 
     Returns
     -------
@@ -103,7 +122,7 @@ def load_grid(
     if kind is not None and kind not in KINDS:
         raise MapError(f"map kind must be one of {KINDS}, got {kind!r}")
     source, file_path, default_kind = _resolve(path)
-    raw = _read(file_path, variable, source)
+    raw = _read(file_path, variable, source, None if resample_m is not None else float32_within)
     if raw.saved is None:  # geofix's own grids may hold inf (e.g. a CRLB layer)
         _require_finite(raw.values, source)
     raw = _crop(raw, region, source)
@@ -211,7 +230,7 @@ def _sniff(path: Path, source: str) -> str:
     raise MapError(f"not a netCDF / GeoTIFF / BAG file: {source} (starts with {head[:4]!r})")
 
 
-def _read(path: Path, variable: str | None, source: str) -> _Raw:
+def _read(path: Path, variable: str | None, source: str, float32_within=None) -> _Raw:
     """Dispatch on the file suffix (unknown suffixes try netCDF, then GeoTIFF)."""
     _sniff(path, source)
     suffix = path.suffix.lower()
@@ -220,9 +239,9 @@ def _read(path: Path, variable: str | None, source: str) -> _Raw:
     if suffix in GEOTIFF_SUFFIXES:
         return _read_geotiff(path, variable, source)
     if suffix in NETCDF_SUFFIXES:
-        return _read_netcdf(path, variable, source)
+        return _read_netcdf(path, variable, source, float32_within)
     try:
-        return _read_netcdf(path, variable, source)
+        return _read_netcdf(path, variable, source, float32_within)
     except MapError:
         try:
             return _read_geotiff(path, variable, source)
@@ -236,16 +255,30 @@ def _one_line(exc: BaseException) -> str:
 
 
 # ---------------------------------------------------------------------- netCDF
-def _read_netcdf(path: Path, variable: str | None, source: str) -> _Raw:
+def _open_netcdf(path: Path, source: str):
+    """The file as a lazily read xarray Dataset (netCDF4 backend, else xarray's guess)."""
     import xarray as xr
 
     try:
-        ds = xr.open_dataset(path)
+        from xarray.backends import NetCDF4BackendEntrypoint
+
+        return xr.open_dataset(path, engine=NetCDF4BackendEntrypoint)
+    except Exception:  # not readable by netCDF4: let xarray try its other backends
+        pass
+    try:
+        return xr.open_dataset(path)
     except Exception as exc:  # xarray raises many types for a bad file
         raise MapError(f"cannot read {source} as netCDF: {_one_line(exc)}") from exc
+
+
+def _read_netcdf(path: Path, variable: str | None, source: str, float32_within=None) -> _Raw:
+    saved = _read_saved_netcdf4(path, source, float32_within)
+    if saved is not None:
+        return saved
+    ds = _open_netcdf(path, source)
     with ds:
         if int(ds.attrs.get("geofix_grid", 0)) == 1:
-            return _saved_raw(ds)
+            return _saved_raw(ds.attrs, ds["z"], source, float32_within)
         var = _pick_variable(ds, variable, source)
         da = _as_yx(ds[var], source)
         xname, yname = da.dims[1], da.dims[0]
@@ -256,9 +289,10 @@ def _read_netcdf(path: Path, variable: str | None, source: str) -> _Raw:
         y = _numbers(da[yname], f"coordinate {yname!r}", source)
         xa, ya = dict(da[xname].attrs), dict(da[yname].attrs)
         attrs = dict(da.attrs)
-        values = _numbers(da, f"variable {var!r}", source)
-    geographic = _is_geographic(str(xname), str(yname), xa, ya, x, y)
-    values, x, y = _ascending(values, x, y, source)
+        geographic = _is_geographic(str(xname), str(yname), xa, ya, x, y)
+        x, y, flips = _ascending_axes(x, y, source)
+        within = None if geographic else float32_within
+        values = _numbers(da, f"variable {var!r}", source, flips, within)
     text = " ".join([var, str(attrs.get("long_name", "")), str(attrs.get("standard_name", ""))])
     units = attrs.get("units") or None
     return _Raw(values, x, y, geographic, "netcdf", var, units, f"{text} {units or ''}")
@@ -309,12 +343,71 @@ def _as_yx(da, source: str):
     return da
 
 
-def _numbers(da, what: str, source: str) -> np.ndarray:
-    """The values of a DataArray as float64, refusing text and oversized variables."""
+def float32_rounding(peak: float) -> float:
+    """Largest error of rounding values of magnitude up to ``peak`` to float32.
+
+    float32 has a 24-bit significand: a value rounds by at most ``2**-24`` of itself
+    (``inf`` for a ``peak`` that is not finite or beyond the float32 range).
+    """
+    peak = abs(float(peak))
+    if not peak <= float(np.finfo(np.float32).max):
+        return float("inf")
+    return peak * 2.0**-24
+
+
+def _numbers(
+    da, what: str, source: str, flips=(False, False), float32_within: float | None = None
+) -> np.ndarray:
+    """The values of a DataArray, read in blocks of rows into their final array.
+
+    Parameters
+    ----------
+    da : xarray.DataArray
+        A lazily loaded variable; 2-D for a map (1-D coordinates are read whole).
+    what, source : str
+        For messages.
+    flips : tuple of bool
+        ``(flip_x, flip_y)``: reverse the columns / rows while reading (2-D only).
+    float32_within : float, optional
+        Store float32 when rounding the largest magnitude read changes it by at most
+        this (map units); otherwise (or None) float64. A variable that turns out too
+        large for it is read again into float64.
+
+    Raises
+    ------
+    MapError
+        Text values. MemoryBudgetError: the array (plus one block) would not fit.
+    """
     if da.dtype.kind not in "biuf":
         raise MapError(f"{source}: {what} holds {da.dtype} values, not numbers")
-    check_allocation(cells_bytes(da.size, copies=3), f"{source}: reading {what} {_shape(da)}")
-    return np.asarray(da.values, dtype=float)
+    if da.ndim != 2:
+        check_allocation(cells_bytes(da.size, copies=2), f"{source}: reading {what} {_shape(da)}")
+        return np.asarray(da.values, dtype=float)
+    dtype = np.dtype(np.float32 if float32_within is not None else np.float64)
+    ny, nx = (int(n) for n in da.shape)
+    step = max(1, READ_BLOCK_BYTES // (8 * max(nx, 1)))
+    block_bytes = 3.0 * 8 * min(step, ny) * nx  # the block read, its float64 copy, |block|
+    need = cells_bytes(ny, nx, itemsize=dtype.itemsize) + block_bytes
+    check_allocation(need, f"{source}: reading {what} {_shape(da)} as {dtype.name}")
+    out = np.empty((ny, nx), dtype)
+    peak = 0.0
+    for r0 in range(0, ny, step):
+        r1 = min(r0 + step, ny)
+        block = da[r0:r1]
+        block = np.asarray(getattr(block, "values", block), dtype=float)
+        if flips[0]:
+            block = block[:, ::-1]
+        if flips[1]:
+            out[ny - r1 : ny - r0] = block[::-1]
+        else:
+            out[r0:r1] = block
+        if dtype == np.float32:
+            largest = np.fmax.reduce(np.abs(block), axis=None)  # NaN only if all NaN
+            peak = max(peak, float(largest)) if largest == largest else peak
+    if dtype == np.float32 and not float32_rounding(peak) <= float32_within:
+        del out
+        return _numbers(da, what, source, flips, None)
+    return out
 
 
 def _is_geographic(xname: str, yname: str, xattrs: dict, yattrs: dict, x, y) -> bool:
@@ -331,10 +424,58 @@ def _is_geographic(xname: str, yname: str, xattrs: dict, yattrs: dict, x, y) -> 
     return bool(in_range and fine)
 
 
-def _saved_raw(ds) -> _Raw:
-    """A grid written by :func:`save_grid`, geometry taken from its attributes."""
-    a = ds.attrs
-    values = ds["z"].values.astype(float)
+def _read_saved_netcdf4(path: Path, source: str, float32_within=None) -> _Raw | None:
+    """A grid written by :func:`save_grid`, read with netCDF4 alone; None if it is not one.
+
+    Importing xarray (and dask, which xarray looks for) takes longer than reading a map
+    of a few million cells; geofix's own files have a known layout (variable ``z`` of
+    floats, unpacked, NaN or no fill value), read here as xarray would decode them.
+    """
+    try:
+        import netCDF4
+    except ImportError:  # pragma: no cover - a dependency of the netCDF reader
+        return None
+    try:
+        ds = netCDF4.Dataset(path, "r")
+    except OSError:
+        return None
+    with ds:
+        attrs = {name: ds.getncattr(name) for name in ds.ncattrs()}
+        var = ds.variables.get("z")
+        if int(attrs.get("geofix_grid", 0)) != 1 or var is None or not _plain_floats(var):
+            return None
+        var.set_auto_maskandscale(False)
+        return _saved_raw(attrs, _Rows(var), source, float32_within)
+
+
+def _plain_floats(var) -> bool:
+    """A 2-D float variable stored as it is decoded: no packing, no fill value but NaN."""
+    names = set(var.ncattrs())
+    if names & {"scale_factor", "add_offset", "missing_value", "valid_min", "valid_max"}:
+        return False
+    if "valid_range" in names or var.dtype.kind != "f" or var.ndim != 2:
+        return False
+    return "_FillValue" not in names or bool(np.isnan(var.getncattr("_FillValue")))
+
+
+class _Rows:
+    """A netCDF4 variable as :func:`_numbers` reads it: dtype, shape, blocks of rows."""
+
+    def __init__(self, var) -> None:
+        self._var = var
+        self.dtype = var.dtype
+        self.shape = tuple(int(n) for n in var.shape)
+        self.ndim = len(self.shape)
+        self.size = int(np.prod(self.shape))
+        self.sizes = dict(zip(var.dimensions, self.shape, strict=True))
+
+    def __getitem__(self, rows) -> np.ndarray:
+        return np.asarray(self._var[rows])
+
+
+def _saved_raw(a: dict, z, source: str, float32_within: float | None = None) -> _Raw:
+    """A grid written by :func:`save_grid`: its attributes ``a`` and its variable ``z``."""
+    values = _numbers(z, "variable 'z'", source, (False, False), float32_within)
     ny, nx = values.shape
     x = float(a["x0"]) + float(a["dx"]) * np.arange(nx)
     y = float(a["y0"]) + float(a["dy"]) * np.arange(ny)
@@ -426,17 +567,40 @@ def _bag_geometry(xml: bytes, source: str) -> tuple[float, float, float, float]:
 
 
 # ---------------------------------------------------------------------- shared steps
-def _ascending(values: np.ndarray, x: np.ndarray, y: np.ndarray, source: str):
-    """Flip axes so that x and y ascend (row 0 south, column 0 west)."""
+def _ascending_axes(x: np.ndarray, y: np.ndarray, source: str):
+    """``(x, y, (flip_x, flip_y))``: both axes ascending, and which ones were reversed."""
     for axis, coord in ((1, x), (0, y)):
         step = np.diff(coord)
         if not (np.all(step > 0) or np.all(step < 0)):
             raise MapError(f"{source}: coordinates along axis {axis} are not monotonic")
-    if x[-1] < x[0]:
-        values, x = values[:, ::-1], x[::-1]
-    if y[-1] < y[0]:
-        values, y = values[::-1, :], y[::-1]
+    flips = (bool(x[-1] < x[0]), bool(y[-1] < y[0]))
+    return (x[::-1] if flips[0] else x), (y[::-1] if flips[1] else y), flips
+
+
+def _ascending(values: np.ndarray, x: np.ndarray, y: np.ndarray, source: str):
+    """Flip axes so that x and y ascend (row 0 south, column 0 west)."""
+    x, y, (flip_x, flip_y) = _ascending_axes(x, y, source)
+    if flip_x:
+        values = values[:, ::-1]
+    if flip_y:
+        values = values[::-1, :]
     return np.ascontiguousarray(values), x, y
+
+
+def _row_blocks(values: np.ndarray):
+    """Views of ``values`` by blocks of whole rows (about ``READ_BLOCK_BYTES`` each)."""
+    rows = max(1, READ_BLOCK_BYTES // max(values.itemsize * values.shape[-1], 1))
+    for r0 in range(0, values.shape[0], rows):
+        yield r0, values[r0 : r0 + rows]
+
+
+def _frozen(values: np.ndarray) -> np.ndarray:
+    """``values`` C-contiguous (copied only if not) and read-only: a Grid keeps it as is."""
+    values = np.ascontiguousarray(values)
+    if values.dtype not in (np.float32, np.float64):
+        values = values.astype(np.float64)
+    values.flags.writeable = False
+    return values
 
 
 def _crop(raw: _Raw, region, source: str) -> _Raw:
@@ -467,18 +631,27 @@ def _detect_kind(text: str, default_kind: str | None) -> str:
 
 
 def _require_finite(values: np.ndarray, source: str) -> None:
-    """Refuse ``+inf`` / ``-inf`` cells: no-data must be NaN (or the file's fill value)."""
-    bad = np.isinf(values)
-    if bad.any():
-        row, col = np.unravel_index(int(np.argmax(bad)), values.shape)
+    """Refuse ``+inf`` / ``-inf`` cells: no-data must be NaN (or the file's fill value).
+
+    Checked a block of rows at a time: no full-map mask is made.
+    """
+    count, first = 0, None
+    for r0, block in _row_blocks(np.atleast_2d(values)):
+        bad = np.isinf(block)
+        n = int(np.count_nonzero(bad))
+        if n and first is None:
+            row, col = np.unravel_index(int(np.argmax(bad)), block.shape)
+            first = (r0 + int(row), int(col))
+        count += n
+    if first is not None:
         raise MapError(
-            f"{source}: {int(bad.sum())} cells are infinite (first at row {row}, column "
-            f"{col}); mark no-data as NaN or with _FillValue"
+            f"{source}: {count} cells are infinite (first at row {first[0]}, column "
+            f"{first[1]}); mark no-data as NaN or with _FillValue"
         )
 
 
 def _require_data(values: np.ndarray, source: str) -> None:
-    if np.all(np.isnan(values)):
+    if np.isnan(np.fmax.reduce(values, axis=None)):  # all NaN, without a full-map mask
         raise MapError(f"{source}: every cell is NaN (no data) in the selected area")
 
 
@@ -524,7 +697,8 @@ def _to_metric(raw: _Raw, cell_m: float | None, meta: dict, source: str, labels:
     dx, dy = _spacing(raw)
     _check_regular(raw, dx, dy, source)
     meta["projection"] = None
-    grid = Grid(raw.values, float(raw.x[0]), float(raw.y[0]), dx, dy, meta=meta, **labels)
+    values = _frozen(raw.values)
+    grid = Grid(values, float(raw.x[0]), float(raw.y[0]), dx, dy, meta=meta, **labels)
     if cell_m is not None:
         grid = project.resample_m(grid, cell_m)
         _require_data(grid.values, source)
@@ -552,7 +726,7 @@ def _finish_saved(raw: _Raw, region, cell_m, kind: str | None, name: str | None)
         meta["region"] = [float(v) for v in region]
     dx, dy = raw.spacing
     grid = Grid(
-        raw.values,
+        _frozen(raw.values),
         float(raw.x[0]),
         float(raw.y[0]),
         dx,

@@ -47,6 +47,7 @@ the start fix to the candidate end, the indicated track rotated and scaled about
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -454,7 +455,7 @@ def translated_msd_scores(
     node_col, node_row = _node_cells(problem.grid, ends)
     measured = problem.measured.reshape(-1)
     keep = np.isfinite(measured)  # a missing measurement adds nothing to any candidate
-    return _translated_msd_kernel(
+    return _translated_msd_kernel()(
         np.ascontiguousarray(problem.grid.values),
         np.ascontiguousarray(rel_col.reshape(-1)[keep]),
         np.ascontiguousarray(rel_row.reshape(-1)[keep]),
@@ -524,11 +525,19 @@ _TRANSLATED_SIGNATURES = [
 ]
 
 
-# Compiled eagerly (and cached on disk) so that no match call pays for compilation.
-@numba.njit(_TRANSLATED_SIGNATURES, parallel=True, cache=True)
-def _translated_msd_kernel(
-    values, rel_col, rel_row, h, node_col, node_row, needed
-):  # pragma: no cover
+@functools.cache
+def _translated_msd_kernel():
+    """The compiled kernel, built for both signatures (and cached on disk) at first use.
+
+    Eager signatures mean no match call pays for compilation; building it at first use
+    rather than at import keeps ``import geofix`` from starting numba's threading layer
+    (a parallel kernel does when it is loaded), which would make the calling process
+    unsafe to fork (GNU OpenMP).
+    """
+    return numba.njit(_TRANSLATED_SIGNATURES, parallel=True, cache=True)(_translated_msd)
+
+
+def _translated_msd(values, rel_col, rel_row, h, node_col, node_row, needed):  # pragma: no cover
     """``(k,)`` MSD of ``h`` against the nearest-node values at ``node + rel`` (see numpy)."""
     ny, nx = values.shape
     out = np.full(node_col.shape[0], np.nan)

@@ -27,13 +27,16 @@ from geofix.sim.sensing import measure_with_unlagged
 from geofix.sim.trial import Trial
 
 
-def prepare_map(scenario: Scenario) -> Grid:
+def prepare_map(scenario: Scenario, float32_within: float | None = None) -> Grid:
     """Load and prepare the scenario's map (cut, project, resample) as a :class:`Grid`.
 
     Parameters
     ----------
     scenario : Scenario
         Its ``map`` block says which file, variable, kind, region and cell size (metres).
+    float32_within : float, optional
+        Store the values in float32 when that rounds none by more than this, map units
+        (see :func:`geofix.maps.io.load_grid`); default float64.
 
     Returns
     -------
@@ -50,12 +53,14 @@ def prepare_map(scenario: Scenario) -> Grid:
     from geofix.maps.io import load_grid
 
     spec = scenario.map
+    precision = {} if float32_within is None else {"float32_within": float32_within}
     return load_grid(
         scenario.map_path(),
         variable=spec.variable,
         kind=spec.kind,
         region=spec.region,
         resample_m=spec.resample_m,
+        **precision,
     )
 
 
