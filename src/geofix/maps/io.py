@@ -404,7 +404,7 @@ def _numbers(
         if dtype == np.float32:
             largest = np.fmax.reduce(np.abs(block), axis=None)  # NaN only if all NaN
             peak = max(peak, float(largest)) if largest == largest else peak
-    if dtype == np.float32 and not float32_rounding(peak) <= float32_within:
+    if dtype == np.float32 and not float32_rounding(peak) <= (float32_within or 0.0):
         del out
         return _numbers(da, what, source, flips, None)
     return out

@@ -53,14 +53,13 @@ def prepare_map(scenario: Scenario, float32_within: float | None = None) -> Grid
     from geofix.maps.io import load_grid
 
     spec = scenario.map
-    precision = {} if float32_within is None else {"float32_within": float32_within}
     return load_grid(
         scenario.map_path(),
         variable=spec.variable,
         kind=spec.kind,
         region=spec.region,
         resample_m=spec.resample_m,
-        **precision,
+        float32_within=float32_within,
     )
 
 
