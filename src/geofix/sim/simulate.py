@@ -10,6 +10,7 @@ errors of a trial unchanged.
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -53,13 +54,17 @@ def prepare_map(scenario: Scenario, float32_within: float | None = None) -> Grid
     from geofix.maps.io import load_grid
 
     spec = scenario.map
+    # only when given, so that a loader without the keyword (a stand-in) still works
+    precision: dict[str, Any] = {}
+    if float32_within is not None:
+        precision["float32_within"] = float32_within
     return load_grid(
         scenario.map_path(),
         variable=spec.variable,
         kind=spec.kind,
         region=spec.region,
         resample_m=spec.resample_m,
-        float32_within=float32_within,
+        **precision,
     )
 
 
