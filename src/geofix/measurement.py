@@ -12,6 +12,9 @@ matcher (:func:`predict_track`, :func:`residuals`), every recursive filter
 - Likelihood: independent Gaussian beams of variance sensor noise plus map error.
 - Linearisation (SITAN): slopes of a least-squares plane fitted over a patch the size of
   the position uncertainty (stochastic terrain linearisation).
+- Sensor lag: :func:`lag_compensated` undoes a gravimeter's declared first-order lag
+  (``problem.lag_s``) causally, so that the recursive filters weigh the readings the
+  model above describes.
 - Information: the Fisher information of a sample about the vehicle position,
   ``sum_b g g^T / var_b`` with ``g`` the map gradient at each footprint.
 """
@@ -28,7 +31,8 @@ from geofix.maps.grid import Grid
 from geofix.maps.mapread import read_beams
 from geofix.maps.terrain import gradient, plane_fit
 from geofix.memory import cells_bytes, check_allocation
-from geofix.problem import footprint_xy
+from geofix.problem import MatchProblem, footprint_xy
+from geofix.sensors.gravimeter import compensate_first_order_lag
 
 OFF_MAP_LOG_LIKELIHOOD = -1e6
 """Log-likelihood per beam of a hypothesis whose footprint is off the map (finite, so a
@@ -379,3 +383,31 @@ def common_bias_posterior(residual, noise_var, bias_var: float) -> tuple[float, 
     s = float(inv_var[valid].sum())
     t = float((residual[valid] * inv_var[valid]).sum())
     return bias_var * t / (1.0 + bias_var * s), bias_var / (1.0 + bias_var * s)
+
+
+# --------------------------------------------------------------------------- sensor lag
+def lag_compensated(problem: MatchProblem) -> np.ndarray:
+    """The problem's readings with the sensor's declared first-order lag undone.
+
+    ``x_k = (y_k - a_k y_{k-1}) / (1 - a_k)``, ``a_k = exp(-(t_k - t_{k-1}) / lag_s)``
+    (:func:`geofix.sensors.gravimeter.compensate_first_order_lag`): causal, each
+    reading needs only the one before it, so a filter may apply it sample by sample.
+    Noise and map error enter before the lag (:mod:`geofix.sensors.echosounder`), so the
+    compensated readings are the map value plus the white errors the likelihood assumes.
+    A missing reading (NaN) also spoils the next compensated one.
+
+    Parameters
+    ----------
+    problem : MatchProblem
+        Its ``measured`` ``(n, b)`` (map units), ``times`` ``(n,)`` seconds and ``lag_s``
+        seconds.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, b)`` compensated readings, map units; ``problem.measured`` itself when
+        ``lag_s`` is 0.
+    """
+    if problem.lag_s <= 0:
+        return problem.measured
+    return compensate_first_order_lag(problem.measured, problem.times, float(problem.lag_s))

@@ -59,6 +59,10 @@ class MatchProblem:
     ins_model : InsErrorModel or None
         The INS error model of the navigator (:mod:`geofix.nav.errstate`), for the
         error-state filters; None when unknown.
+    lag_s : float
+        The sensor's declared first-order lag time constant, seconds (a gravimeter's
+        datasheet number; 0 = no lag). The recursive filters undo it before their update
+        (:func:`geofix.measurement.lag_compensated`); ``measured`` stays as recorded.
     """
 
     grid: Grid
@@ -74,6 +78,12 @@ class MatchProblem:
     beam_noise_std: np.ndarray | None = None
     dvl_velocity: np.ndarray | None = None
     ins_model: InsErrorModel | None = None
+    lag_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        lag = float(self.lag_s)
+        if not (np.isfinite(lag) and lag >= 0):
+            raise ConfigError(f"MatchProblem: lag_s must be finite and >= 0, got {self.lag_s}")
 
     @property
     def n(self) -> int:

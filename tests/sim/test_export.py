@@ -1,5 +1,7 @@
 """Exported trials: a round trip through netCDF gives back the very same map and trials."""
 
+import json
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -7,7 +9,9 @@ import yaml
 
 from geofix.errors import GeofixError
 from geofix.evaluate.runner import method_rng, run_trial
+from geofix.logs.exported import read_exported
 from geofix.methods import parse_method_spec
+from geofix.nav.errstate import InsErrorModel
 from geofix.sim.export import export_trials, load_exported
 from geofix.sim.simulate import prepare_map, simulate_trial
 
@@ -116,3 +120,48 @@ def test_cli_export(tmp_path, small_mission):
     assert [t.index for t in trials] == [0, 1]
     bad = CliRunner().invoke(app, [*args[:2], "--trials", "0", "--out", str(out)])
     assert bad.exit_code == 2
+
+
+def test_the_ins_model_round_trips_and_error_state_filters_run_on_the_file(tmp_path, small_mission):
+    sensor = {"type": "multibeam", "beams": 5, "swath_width_m": 2000.0, "noise_std": 2.0}
+    scen = _scenario(small_mission, sensor, dvl={"noise_std_m_s": 0.02, "bias_m_s": 0.01})
+    path = export_trials(scen, tmp_path / "ins.nc")
+    grid, trials = load_exported(path)
+    ref_grid = prepare_map(scen)
+    ref = simulate_trial(scen, ref_grid, 1)
+    assert ref.ins_model is not None and ref.ins_model.dvl_aiding
+    assert trials[1].ins_model == ref.ins_model
+    for spec in ("mpf:particles=500", "pmf:model=errstate"):
+        method = parse_method_spec(spec)
+        ours = run_trial(method, trials[1], grid, method_rng(3, 1, spec))
+        theirs = run_trial(method, ref, ref_grid, method_rng(3, 1, spec))
+        assert not ours.failed, ours.message
+        np.testing.assert_array_equal(ours.estimate, theirs.estimate)
+    mission, _ = read_exported(path, trial=1)
+    assert mission.meta["ins_model"] == ref.ins_model
+    np.testing.assert_array_equal(mission.velocity, ref.dvl_velocity)
+
+
+def test_an_export_without_the_ins_model_reads_as_before(tmp_path, small_mission):
+    scen = _scenario(small_mission, {"type": "singlebeam", "noise_std": 2.0})
+    path = export_trials(scen, tmp_path / "t.nc")
+    with xr.open_dataset(path) as opened:
+        ds = opened.load()
+    assert "ins_model_json" in ds.attrs
+    del ds.attrs["ins_model_json"]
+    ds.to_netcdf(tmp_path / "old.nc")
+    _, trials = load_exported(tmp_path / "old.nc")
+    assert trials[0].ins_model is None
+    mpf = parse_method_spec("mpf")
+    result = run_trial(mpf, trials[0], prepare_map(scen), method_rng(0, 0, "mpf"))
+    assert result.failed and "INS error model" in result.message
+    ds.attrs["ins_model_json"] = '{"mode": "sideways"}'
+    ds.to_netcdf(tmp_path / "bad.nc")
+    with pytest.raises(GeofixError, match="ins_model_json"):
+        load_exported(tmp_path / "bad.nc")
+
+
+def test_ins_model_dict_round_trip():
+    model = InsErrorModel(mode="dvl", initial_offset=(10.0, -5.0), dvl_bias=0.02)
+    assert InsErrorModel.from_dict(json.loads(json.dumps(model.to_dict()))) == model
+    assert InsErrorModel.from_dict({**model.to_dict(), "future_key": 1}) == model

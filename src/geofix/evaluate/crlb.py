@@ -44,8 +44,18 @@ read along the *true* track (the bound is a property of the terrain actually cro
 Map gradients are the exact gradient of the bilinear interpolant that the simulator and
 the filters read (:meth:`geofix.maps.grid.Grid.sample_gradient`) at every true
 footprint; a gradient that cannot be formed (next to no-data) carries no information.
-A gravimeter's first-order lag and the heading error's rotation of off-nadir footprints
-are ignored (the bound is then slightly optimistic).
+The heading error's rotation of off-nadir footprints is ignored (the bound is then
+slightly optimistic).
+
+A gravimeter's first-order lag changes none of these bounds. The simulator adds the
+sensor noise and map error *before* the lag (:mod:`geofix.sensors.echosounder`), so the
+lagged readings ``y = L x`` are an invertible, known, lower-triangular linear map ``L``
+(:mod:`geofix.sensors.gravimeter`) of the unlagged ones ``x``; any estimator of ``y``
+is an estimator of ``x = L^-1 y`` and conversely, so both sequences carry the same
+Fisher information about the track (the information of ``x`` is invariant under an
+invertible transform that does not depend on the state) and the lagged system's bound
+is the unlagged one computed here. The recursive filters reach it by undoing the
+declared lag causally before their update (:func:`geofix.measurement.lag_compensated`).
 """
 
 from __future__ import annotations

@@ -14,6 +14,13 @@ Gaussian ``N(mu, Sigma)`` of the whole INS error state ``x = [dp, x_l]`` of
    ``K``;
 3. the Kalman filter predicts ``mu <- F mu``, ``Sigma <- F Sigma F^T + Q``.
 
+With an aiding DVL, its velocity ``y = v_INS - v_DVL = C x + noise`` (``C`` the error
+state's velocity map, noise variance ``r`` per axis) is, given ``dp``, Gaussian with mean
+``C_p dp + C_l E[x_l | dp]`` (affine in ``dp``) and a covariance shared by all nodes: it
+weighs the nodes by that likelihood and updates the Kalman filter (:func:`dvl_update`),
+whose conditional of ``x_l`` given ``dp`` then holds the velocity's information for the
+next step's regression.
+
 Why this form rather than a PMF feeding a separate error-state filter that resets the
 INS: the affine map carries the correlation between where the vehicle is and how fast
 the INS drifts there, which a single correction applied to every node cannot; it costs
@@ -79,3 +86,40 @@ def conditional_motion(mu, sigma, f, q):
     h = a_l @ (mu[_L] - reg @ mu[_P])
     k = a_l @ cond @ a_l.T + q[_P, _P]
     return g, h, 0.5 * (k + k.T)
+
+
+def dvl_update(mu, sigma, velocity_map, noise_var: float, y, dp):
+    """A DVL velocity ``y = C x + v``: node log-likelihoods and the Kalman update.
+
+    Parameters
+    ----------
+    mu, sigma : numpy.ndarray
+        ``(d,)``, ``(d, d)`` error state at the current sample.
+    velocity_map : numpy.ndarray
+        ``(2, d)`` ``C``, m/s per state unit.
+    noise_var : float
+        Per-axis variance of the DVL noise ``v``, m^2/s^2.
+    y : numpy.ndarray
+        ``(2,)`` ``v_INS - v_DVL``, m/s.
+    dp : numpy.ndarray
+        ``(..., 2)`` position error of every node (indicated - node), metres.
+
+    Returns
+    -------
+    tuple
+        ``log p(y | dp)`` ``(...)`` up to a constant, and the updated ``(mu, Sigma)``.
+    """
+    c = np.asarray(velocity_map, dtype=float)
+    reg = np.linalg.solve(sigma[_P, _P], sigma[_P, _L]).T
+    cond = sigma[_L, _L] - reg @ sigma[_P, _L]
+    c_p, c_l = c[:, _P], c[:, _L]
+    gain_dp = c_p + c_l @ reg  # d E[y | dp] / d dp
+    offset = c_l @ (mu[_L] - reg @ mu[_P])
+    s = c_l @ cond @ c_l.T + noise_var * np.eye(2)
+    r = np.asarray(y, dtype=float) - (np.asarray(dp, dtype=float) @ gain_dp.T + offset)
+    log_like = -0.5 * np.einsum("...i,ij,...j->...", r, np.linalg.inv(s), r)
+    total = c @ sigma @ c.T + noise_var * np.eye(2)
+    gain = np.linalg.solve(total, c @ sigma).T
+    mu = mu + gain @ (np.asarray(y, dtype=float) - c @ mu)
+    sigma = sigma - gain @ c @ sigma
+    return log_like, (mu, 0.5 * (sigma + sigma.T))

@@ -23,6 +23,7 @@ from typing import ClassVar
 import numpy as np
 
 from geofix.maps.grid import Grid
+from geofix.measurement import lag_compensated
 from geofix.problem import Fix, MatchProblem
 
 
@@ -65,6 +66,8 @@ class Observation:
         per beam (a multibeam's outer beams are noisier than nadir; read-only when built
         by :func:`observations`), or one float for every beam when the problem declares
         no per-beam noise. The measurement functions accept both.
+        The values are the readings with the sensor's declared lag undone
+        (:func:`geofix.measurement.lag_compensated`).
     index : int
         Sample index.
     bias_var : float
@@ -109,16 +112,20 @@ def observations(problem: MatchProblem) -> list[Observation]:
     ``noise_var`` (map units squared, floored at ``1e-12``) is
     :meth:`MatchProblem.beam_noise_var`, one read-only ``(b,)`` array shared by all
     observations, when the problem has ``beam_noise_std``; otherwise the float
-    ``noise_std^2 + map_error_std^2`` (the same for every beam).
+    ``noise_std^2 + map_error_std^2`` (the same for every beam). ``values`` are the
+    readings with the declared lag ``problem.lag_s`` undone (causally:
+    :func:`geofix.measurement.lag_compensated`), the one place every recursive filter
+    (PMF, PF, MPF, SITAN) gets its readings from.
     """
     if problem.beam_noise_std is None:
         noise_var = max(problem.noise_std**2 + problem.map_error_std**2, 1e-12)
     else:
         noise_var = np.maximum(problem.beam_noise_var(), 1e-12)
         noise_var.setflags(write=False)
+    measured = lag_compensated(problem)
     return [
         Observation(
-            values=problem.measured[k],
+            values=measured[k],
             indicated=problem.indicated[k],
             heading=float(problem.heading[k]),
             offsets=problem.offsets,

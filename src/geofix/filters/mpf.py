@@ -39,10 +39,24 @@ Systems 45(4):
   vectors ``z_i = [dp_i, m_i]`` are therefore moved by the kernel of Liu & West (2001,
   "Combined parameter and state estimation in simulation-based filtering"):
   ``z_i <- mean + a (z_i - mean) + h e_i``, ``e_i ~ N(0, C)`` with ``C`` the weighted
-  covariance of the set before resampling, ``a = sqrt(1 - h^2)`` (the set's mean and
-  covariance are kept) and Musso, Oudjane & Le Gland's (2001) bandwidth
-  ``h = (4 / (4 M))^(1/6)`` for the two particle dimensions. The move keeps the
-  correlation between a particle's position and its linear states.
+  covariance of the set before resampling and ``a = sqrt(1 - h^2)`` (the set's mean and
+  covariance are kept). Two points make the move keep the filter consistent:
+
+  * the uncertainty lives in the whole joint ``z`` (dimension ``d = 2 + d_l``), so the
+    bandwidth is Musso, Oudjane & Le Gland's (2001) ``h = (4 / ((d + 2) M))^(1/(d+4))``
+    for ``d`` dimensions (the two-dimension value, about half as wide, let the linear
+    states' spread dwindle resampling after resampling: the position covariance shrank
+    below the Cramér–Rao bound and the filter ended sure of a wrong position). The
+    kernel is Rao–Blackwellised: ``e_i``'s ``dp`` part is drawn, the linear means
+    follow its regression, and the linear part's conditional covariance
+    ``h^2 (C_ll - C_lp C_pp^-1 C_pl)`` is added to the shared ``P`` instead of being
+    drawn;
+  * a global Gaussian kernel is only right for a near-Gaussian set. A set spread over
+    several modes (a wide prior on ambiguous terrain) would have its particles pulled
+    towards the global mean and thrown between the modes, losing the true one;
+    while the positions' Mardia kurtosis says the set is not near-Gaussian
+    (:func:`near_gaussian`) the resampled positions are only jittered within their own
+    share of the area (``spacing / sqrt(12)`` per axis, the linear means following).
 
 The prior is the error state's (the simulator's second moments), read from
 ``problem.ins_model`` (:class:`~geofix.nav.errstate.InsErrorModel`, put there
@@ -328,15 +342,34 @@ class Mpf(RecursiveFilter):
         cov = _sym(state.cov - gain @ c @ state.cov)
         return replace(state, linear=linear, cov=cov), log_weight
 
-    def _move(self, joint, mean, cov, rng) -> np.ndarray:
-        """Liu & West's shrunk kernel move of the resampled ``[dp, m]`` (variance kept)."""
-        count = joint.shape[0]
-        h = (4.0 / (count * 4.0)) ** (1.0 / 6.0)  # Musso et al. (2001), 2 particle dims
-        shrink = np.sqrt(1.0 - h * h)
-        values, vectors = np.linalg.eigh(0.5 * (cov + cov.T))
+    def _move(self, joint, mean, cov, linear_cov, rng) -> tuple[np.ndarray, np.ndarray]:
+        """Liu & West's shrunk kernel move of the resampled ``[dp, m]`` (variance kept).
+
+        The kernel ``N(0, h^2 C)`` is split into its ``dp`` marginal, drawn, and the
+        linear states given ``dp``: their regression on the drawn ``dp`` moves the means,
+        their conditional covariance ``h^2 (C_ll - C_lp C_pp^-1 C_pl)`` is added to the
+        shared Kalman covariance (Rao–Blackwellised, no draw). ``h`` is the bandwidth of
+        the whole joint dimension ``d``.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            The moved ``(M, d)`` joint vectors and the ``(d_l, d_l)`` Kalman covariance.
+        """
+        count, dim = joint.shape
+        h = kernel_bandwidth(count, dim)
+        moved = mean + np.sqrt(1.0 - h * h) * (joint - mean)
+        c_pp = _sym(cov[_P, _P])
+        values, vectors = np.linalg.eigh(c_pp)
         factor = vectors * np.sqrt(np.clip(values, 0.0, None))
-        jitter = _times(rng.standard_normal(joint.shape), factor)
-        return mean + shrink * (joint - mean) + h * jitter
+        jitter = h * _times(rng.standard_normal((count, 2)), factor)
+        reg = _regression(cov)
+        moved[:, _P] += jitter
+        moved[:, _L] += _times(jitter, reg)
+        conditional = _sym(cov[_L, _L] - reg @ cov[_P, _L])
+        values, vectors = np.linalg.eigh(conditional)
+        conditional = (vectors * np.clip(values, 0.0, None)) @ vectors.T
+        return moved, _sym(linear_cov + h * h * conditional)
 
     def _resample(self, state: MpfState, rng: np.random.Generator) -> MpfState:
         """Systematic resample to the particle count of the posterior box, then moved."""
@@ -351,17 +384,86 @@ class Mpf(RecursiveFilter):
         cov = (spread * w[:, None]).T @ spread
         index = systematic_resample(w, rng, count)
         joint = joint[index]
-        if self.regularise:
-            joint = self._move(joint, mean, cov, rng)
+        linear_cov = state.cov
+        spacing = float(np.sqrt(area / count))
+        if self.regularise and not near_gaussian(state.dp, w):
+            joint = _roughen(joint, cov, spacing, rng)
+        elif self.regularise:
+            joint, linear_cov = self._move(joint, mean, cov, linear_cov, rng)
         dp, linear = joint[:, _P], joint[:, _L]
         return replace(
             state,
             dp=dp,
             linear=linear,
+            cov=linear_cov,
             log_weight=np.full(count, -np.log(count)),
-            spacing=float(np.sqrt(area / count)),
+            spacing=spacing,
             resamples=state.resamples + 1,
         )
+
+
+#: Range of Mardia's kurtosis of the particle positions within which the set is taken as
+#: near-Gaussian (a 2-D Gaussian has 8).
+GAUSSIAN_KURTOSIS = (6.5, 12.0)
+
+
+def near_gaussian(dp: np.ndarray, weights: np.ndarray) -> bool:
+    """Whether a weighted 2-D set looks Gaussian enough for a global kernel move.
+
+    Mardia's (1970) multivariate kurtosis ``b = sum_i w_i (d_i^T C^-1 d_i)^2`` (``d_i`` the
+    deviations from the weighted mean, ``C`` the weighted covariance) is 8 for a 2-D
+    Gaussian; a set split into well separated modes has less (equal modes: about 6), a
+    set with a small far mode more (a 4 % mode many sigmas out: over 20). Outside
+    :data:`GAUSSIAN_KURTOSIS` the set is not near-Gaussian.
+
+    Parameters
+    ----------
+    dp : numpy.ndarray
+        ``(M, 2)`` positions, metres.
+    weights : numpy.ndarray
+        ``(M,)`` normalised weights.
+
+    Returns
+    -------
+    bool
+        True when the kurtosis lies in :data:`GAUSSIAN_KURTOSIS`.
+    """
+    mean = weights @ dp
+    d = dp - mean
+    cov = (d * weights[:, None]).T @ d
+    if not np.linalg.det(cov) > 0:
+        return False
+    mahalanobis = np.einsum("mi,ij,mj->m", d, np.linalg.inv(cov), d)
+    kurtosis = float(weights @ mahalanobis**2)
+    return GAUSSIAN_KURTOSIS[0] <= kurtosis <= GAUSSIAN_KURTOSIS[1]
+
+
+def _regression(cov: np.ndarray) -> np.ndarray:
+    """``C_lp C_pp^-1`` ``(d_l, 2)``: the linear states' regression on ``dp`` in ``cov``."""
+    return np.linalg.lstsq(_sym(cov[_P, _P]), cov[_P, _L], rcond=1e-12)[0].T
+
+
+def _roughen(joint: np.ndarray, cov: np.ndarray, spacing: float, rng) -> np.ndarray:
+    """Jitter ``dp`` within one particle's share (per-axis 1-sigma ``spacing / sqrt(12)``).
+
+    The move of a spread-out, possibly multimodal set: local (a kernel built from the
+    set's covariance would throw particles between the modes). The linear means follow
+    their regression on the jitter in ``cov``, the set's ``(d, d)`` covariance.
+    """
+    jitter = spacing / np.sqrt(12.0) * rng.standard_normal((joint.shape[0], 2))
+    out = joint.copy()
+    out[:, _P] += jitter
+    out[:, _L] += _times(jitter, _regression(cov))
+    return out
+
+
+def kernel_bandwidth(count: int, dim: int) -> float:
+    """Kernel bandwidth ``h = (4 / ((d + 2) M))^(1 / (d + 4))`` of ``M`` points in ``d`` dims.
+
+    The Gaussian-optimal (Silverman) bandwidth, as Musso, Oudjane & Le Gland (2001) use it
+    for the regularised particle filter; ``d`` is the whole joint ``[dp, x_l]``.
+    """
+    return float((4.0 / ((dim + 2.0) * count)) ** (1.0 / (dim + 4.0)))
 
 
 def _times(rows: np.ndarray, matrix: np.ndarray) -> np.ndarray:

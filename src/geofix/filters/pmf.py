@@ -65,11 +65,11 @@ import numpy as np
 from geofix._measurement_kernels import node_field_variance_kernel
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _grid_ops as ops
-from geofix.filters._pmf_errstate import conditional_motion, replace_marginal
+from geofix.filters._pmf_errstate import conditional_motion, dvl_update, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
 from geofix.measurement import log_likelihood, predict_measurements
-from geofix.nav.errstate import ErrorState, error_state, step_matrices
+from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
 from geofix.problem import MatchProblem
 
 
@@ -101,6 +101,9 @@ class PmfState:
         ``(2,)`` indicated position at the current sample (``model=errstate``), metres.
     step : int
         Current sample index.
+    dvl : numpy.ndarray or None
+        ``(n, 2)`` ``v_INS - v_DVL`` at every sample, m/s, when a DVL aids
+        (``model=errstate``).
     """
 
     log_weight: np.ndarray
@@ -114,6 +117,7 @@ class PmfState:
     errstate: ErrorState | None = None
     indicated: np.ndarray | None = None
     step: int = 0
+    dvl: np.ndarray | None = None
 
     @property
     def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -173,8 +177,12 @@ class Pmf(RecursiveFilter):
         Motion model: ``rw`` (the INS error as a white random walk of per-axis variance
         ``Motion.process_var``) or ``errstate`` (the INS error state of
         :mod:`geofix.nav.errstate`, its prior the simulator's second moments, from
-        ``problem.ins_model``; see :mod:`geofix.filters._pmf_errstate`). The
-        error-state model does not use a DVL (``mpf`` does).
+        ``problem.ins_model``; see :mod:`geofix.filters._pmf_errstate`). With
+        ``use_dvl`` the error-state model folds in an aiding DVL's velocity, as ``mpf``
+        does (:func:`geofix.filters._pmf_errstate.dvl_update`).
+    use_dvl : bool
+        Fold in an aiding DVL's velocity when the problem has one (``model=errstate``;
+        the random-walk model has no velocity state to aid).
 
     References
     ----------
@@ -209,6 +217,7 @@ class Pmf(RecursiveFilter):
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
     model: str = "rw"
+    use_dvl: bool = True
 
     def __post_init__(self) -> None:
         if self.model not in ("rw", "errstate"):
@@ -265,7 +274,13 @@ class Pmf(RecursiveFilter):
         return replace(state, log_weight=log_weight, centre=centre)
 
     def update(self, state: PmfState, obs: Observation, grid: Grid, rng) -> PmfState:
-        """Add every node's measurement log-likelihood (all beams at once)."""
+        """Add every node's measurement log-likelihood (all beams at once).
+
+        With ``model=errstate`` and an aiding DVL, the DVL velocity first updates the
+        error-state Kalman filter and weighs the nodes.
+        """
+        if state.dvl is not None and np.isfinite(state.dvl[obs.index]).all():
+            state = self._dvl_update(state, state.dvl[obs.index])
         if not np.isfinite(obs.values).any():
             return state
         xy = ops.node_positions(*state.frame, state.shape)
@@ -315,7 +330,25 @@ class Pmf(RecursiveFilter):
             kf=(np.zeros(es.dim), sigma),
             errstate=es,
             indicated=centre,
+            dvl=self._dvl_innovations(problem, es),
         )
+
+    def _dvl_innovations(self, problem: MatchProblem, es: ErrorState) -> np.ndarray | None:
+        """``v_INS - v_DVL`` ``(n, 2)`` m/s (``v_INS`` the indicated step velocity)."""
+        dvl = problem.dvl_velocity
+        if not self.use_dvl or dvl is None or es.velocity_map is None:
+            return None
+        return step_velocities(problem.times, problem.indicated) - np.asarray(dvl, float)
+
+    def _dvl_update(self, state: PmfState, y: np.ndarray) -> PmfState:
+        """The DVL's velocity: node log-likelihoods and the Kalman update of the error state."""
+        es = state.errstate
+        assert es is not None and es.velocity_map is not None and state.kf is not None
+        assert state.indicated is not None
+        dp = state.indicated - ops.node_positions(*state.frame, state.shape)
+        log_like, kf = dvl_update(*state.kf, es.velocity_map, es.velocity_noise_var, y, dp)
+        log_weight = ops.normalise(state.log_weight + log_like.reshape(state.shape))
+        return replace(state, log_weight=log_weight, kf=kf)
 
     def _predict_errstate(self, state: PmfState, motion: Motion) -> PmfState:
         es, k = state.errstate, state.step

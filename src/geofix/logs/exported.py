@@ -26,8 +26,11 @@ def read_exported(path: str | Path, trial: int = 0) -> tuple[Mission, Grid]:
     tuple
         ``(Mission, Grid)``: the mission (``nav_source = "ins"``: the free INS track is
         the navigation, the simulated truth is ``truth``; ``sigma_position`` the
-        scenario's prior sigma; ``meta`` holds ``noise_std``, ``map_error_std``,
-        ``beam_noise_std`` and ``sensor``) and the map it was drawn on.
+        scenario's prior sigma; ``velocity`` the aiding DVL's velocity when the trial has
+        one; ``meta`` holds ``noise_std``, ``map_error_std``, ``beam_noise_std``,
+        ``sensor``, ``lag_s`` (the gravimeter's declared lag, seconds) and ``ins_model``
+        (the navigator's :class:`~geofix.nav.errstate.InsErrorModel`, None when the
+        file has none), and the map it was drawn on.
 
     Raises
     ------
@@ -52,6 +55,7 @@ def read_exported(path: str | Path, trial: int = 0) -> tuple[Mission, Grid]:
             beams=beams,
             nav_source="ins",
             truth=np.asarray(t.truth, dtype=float),
+            velocity=None if t.dvl_velocity is None else np.asarray(t.dvl_velocity, float),
             sigma_position=np.asarray(t.sigma_position, dtype=float),
             frame=grid.meta.get("projection"),
             kind=grid.kind,
@@ -64,6 +68,8 @@ def read_exported(path: str | Path, trial: int = 0) -> tuple[Mission, Grid]:
                 "noise_std": float(t.noise_std),
                 "map_error_std": float(t.map_error_std),
                 "beam_noise_std": t.beam_noise_std,
+                "lag_s": float(t.lag_s),
+                "ins_model": t.ins_model,
             },
         ),
         grid,

@@ -36,8 +36,11 @@ numpy step over an array ``(pairs, sources, 4)``.
   (``simplified_radius_cells``) around the indicated positions moved by the offset
   interpolated between the screened full matches.
 
-A gravimeter's first-order lag is undone before matching when ``lag_s > 0``
-(:func:`geofix.sensors.gravimeter.compensate_first_order_lag`).
+A gravimeter's first-order lag is undone before matching when the method's own
+``lag_s > 0`` (:func:`geofix.sensors.gravimeter.compensate_first_order_lag`). The
+problem's declared ``lag_s`` (which the recursive filters undo) is not read, so the
+readings are compensated once at most, and ``abc-mhd`` with ``lag_s = 0`` matches the
+raw lagged readings (the comparison of the source-003 section).
 """
 
 from __future__ import annotations

@@ -66,7 +66,7 @@ measurement ``v_INS - v_DVL = dv - bd + noise`` (noise variance
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from functools import lru_cache
 
 import numpy as np
@@ -166,6 +166,44 @@ class InsErrorModel:
             dvl_scale_error=0.0 if dvl is None else abs(float(getattr(dvl, "scale_error", 0.0))),
             dvl_aiding=mode == "free" and dvl is not None,
         )
+
+    def to_dict(self) -> dict:
+        """The datasheet numbers as a JSON-ready mapping (SI units, field names as keys)."""
+        out = asdict(self)
+        out["initial_offset"] = [float(v) for v in self.initial_offset]
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> InsErrorModel:
+        """The model back from :meth:`to_dict` (keys this version does not know are skipped).
+
+        Raises
+        ------
+        ConfigError
+            ``data`` is not a mapping, or a value has the wrong type.
+        """
+        if not isinstance(data, dict):
+            raise ConfigError(f"INS error model: expected a mapping, got {type(data).__name__}")
+        known = {f.name for f in fields(cls)}
+        values = {k: v for k, v in data.items() if k in known}
+        try:
+            if "initial_offset" in values:
+                east, north = values["initial_offset"]
+                values["initial_offset"] = (float(east), float(north))
+            for key in ("mode",):
+                if key in values:
+                    values[key] = str(values[key])
+            for key in ("schuler", "dvl_aiding"):
+                if key in values:
+                    values[key] = bool(values[key])
+            for key in known - {"mode", "schuler", "dvl_aiding", "initial_offset"}:
+                if key in values and values[key] is not None:
+                    values[key] = float(values[key])
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"INS error model: bad value ({exc})") from None
+        if values.get("mode", "free") not in ("free", "dvl"):
+            raise ConfigError(f"INS error model: mode must be free or dvl, got {values['mode']!r}")
+        return cls(**values)
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -16,8 +16,11 @@ other tools can be run on the very same data:
   ``unlagged_measured``) as ``extra_<key>[_x|_y]`` and ``lag_s`` per trial, each
   tagged with attributes ``extra_key`` / ``extra_component`` so the reader restores them;
 - global attributes: the scenario as YAML (``scenario_yaml``), its name, seed, sensor
-  type and conventions. Units are on every variable (metres, radians clockwise from
-  north, seconds, map units).
+  type and conventions; the navigator's INS error model
+  (:class:`~geofix.nav.errstate.InsErrorModel`, SI units) as JSON (``ins_model_json``)
+  when the trials have one, so that the error-state filters (``mpf``,
+  ``pmf:model=errstate``) run on the file's trials. Units are on every variable (metres,
+  radians clockwise from north, seconds, map units).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from numpy.typing import ArrayLike
 
 from geofix.errors import ConfigError, GeofixError
 from geofix.maps.grid import Grid
+from geofix.nav.errstate import InsErrorModel
 from geofix.sim.scenario import with_overrides
 from geofix.sim.trial import Trial
 
@@ -189,7 +193,8 @@ def _extra_vars(trials: list[Trial]) -> dict[str, _Variable]:
 
 
 def _global_attrs(grid: Grid, first: Trial) -> dict:
-    return {
+    ins = {} if first.ins_model is None else {"ins_model_json": _ins_model_json(first.ins_model)}
+    return ins | {
         "geofix_trials": 1,
         "Conventions": "x east, y north (metres, local frame); headings radians clockwise "
         "from north; row 0 of z at the south; measured in map units (same sign as z)",
@@ -205,6 +210,21 @@ def _global_attrs(grid: Grid, first: Trial) -> dict:
     }
 
 
+def _ins_model_json(model: InsErrorModel) -> str:
+    return json.dumps(model.to_dict())
+
+
+def _ins_model_from(ds) -> InsErrorModel | None:
+    """The ``ins_model_json`` attribute back as a model (None in a file without one)."""
+    text = ds.attrs.get("ins_model_json")
+    if text is None:
+        return None
+    try:
+        return InsErrorModel.from_dict(json.loads(text))
+    except (ValueError, ConfigError) as exc:
+        raise GeofixError(f"bad ins_model_json attribute in the trials export: {exc}") from None
+
+
 def _check_alike(trials: list[Trial]) -> None:
     if not trials:
         raise GeofixError("no trials to export")
@@ -212,6 +232,8 @@ def _check_alike(trials: list[Trial]) -> None:
     for t in trials[1:]:
         if t.measured.shape != first.measured.shape or t.leg_starts != first.leg_starts:
             raise GeofixError("trials to export must have the same samples, beams and legs")
+        if t.ins_model != first.ins_model:
+            raise GeofixError("trials to export must share one INS error model")
 
 
 def load_exported(path: str | Path) -> tuple[Grid, list[Trial]]:
@@ -226,7 +248,7 @@ def load_exported(path: str | Path) -> tuple[Grid, list[Trial]]:
     -------
     tuple
         ``(Grid, [Trial, ...])``, equal to what was exported (tuples in the grid's
-        ``meta`` come back as lists).
+        ``meta`` come back as lists), ``ins_model`` included when the file has one.
 
     Raises
     ------
@@ -242,7 +264,8 @@ def load_exported(path: str | Path) -> tuple[Grid, list[Trial]]:
         raise GeofixError(f"cannot read exported trials {path}: {exc}") from None
     if ds.attrs.get("geofix_trials") != 1:
         raise GeofixError(f"{path} is not a geofix trials export (no geofix_trials attribute)")
-    return _grid_from(ds), [_trial_from(ds, k) for k in range(ds.sizes["trial"])]
+    ins_model = _ins_model_from(ds)
+    return _grid_from(ds), [_trial_from(ds, k, ins_model) for k in range(ds.sizes["trial"])]
 
 
 def _grid_from(ds) -> Grid:
@@ -260,7 +283,7 @@ def _grid_from(ds) -> Grid:
     )
 
 
-def _trial_from(ds, k: int) -> Trial:
+def _trial_from(ds, k: int, ins_model: InsErrorModel | None = None) -> Trial:
     def pair(name: str) -> np.ndarray:
         return np.column_stack([ds[f"{name}_x"].values[k], ds[f"{name}_y"].values[k]])
 
@@ -280,6 +303,7 @@ def _trial_from(ds, k: int) -> Trial:
         index=int(ds["trial_index"].values[k]),
         **_extras_from(ds, k),
         beam_noise_std=_beam_noise_std_from(ds, k),
+        ins_model=ins_model,
     )
 
 

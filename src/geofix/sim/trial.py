@@ -60,7 +60,8 @@ class Trial:
         ``(n, b)`` the readings before a gravimeter's lag, map units (truth: never handed
         to a method); None without a lag.
     lag_s : float
-        The gravimeter's lag time constant, seconds (0 without one).
+        The gravimeter's declared lag time constant, seconds (0 without one): the
+        scenario's sensor datasheet number, handed to every problem.
     """
 
     truth: np.ndarray
@@ -119,4 +120,5 @@ class Trial:
             beam_noise_std=self.beam_noise_std,
             dvl_velocity=dvl,
             ins_model=self.ins_model,
+            lag_s=float(self.lag_s),
         )

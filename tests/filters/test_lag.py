@@ -1,0 +1,115 @@
+"""The declared gravimeter lag: undone once, causally, by every recursive filter."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from geofix.errors import ConfigError
+from geofix.evaluate.runner import method_rng, run_trial
+from geofix.filters.base import observations
+from geofix.match.abc import AbcMhd
+from geofix.methods import parse_method_spec
+from geofix.sim.scenario import scenario_from_dict
+from geofix.sim.simulate import prepare_map, simulate_trial
+
+LAG_S = 60.0
+
+
+def _gravity_mission(lag_s: float, samples: int = 50):
+    """Source 003's lagged mission (Gulf of Alaska gravity, 20 s samples), shortened."""
+    return scenario_from_dict(
+        {
+            "name": f"lag-{lag_s:g}",
+            "map": {
+                "path": "builtin:alaska_gravity",
+                "kind": "gravity",
+                "region": [-138, -136, 53, 55],
+                "resample_m": 100,
+            },
+            "track": {
+                "start_cell": [250, 1120],
+                "heading_deg": 70,
+                "speed_m_s": 10,
+                "interval_s": 20,
+                "samples": samples,
+            },
+            "sensor": {"type": "gravimeter", "noise_std": 1.0, "lag_s": lag_s},
+            "ins": {
+                "initial_error_m": [300, 300],
+                "velocity_error_m_s": 0.04,
+                "heading_error_deg": 0.05,
+                "accel_bias_ug": 101.97,
+            },
+            "dvl": {"noise_std_m_s": 0.02, "bias_m_s": 0.02},
+            "trials": 4,
+            "seed": 3,
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def missions():
+    lagged, unlagged = _gravity_mission(LAG_S), _gravity_mission(0.0)
+    grid = prepare_map(lagged)
+    pairs = [(simulate_trial(lagged, grid, i), simulate_trial(unlagged, grid, i)) for i in range(4)]
+    return grid, pairs
+
+
+def test_the_problem_declares_the_lag_and_the_observations_undo_it(missions):
+    grid, pairs = missions
+    lagged, unlagged = pairs[0]
+    problem = lagged.problem(grid)
+    assert problem.lag_s == LAG_S and unlagged.problem(grid).lag_s == 0.0
+    values = np.array([o.values for o in observations(problem)])
+    # noise and map error enter before the lag: the compensated readings are the unlagged
+    np.testing.assert_allclose(values, lagged.unlagged_measured, atol=1e-9)
+    np.testing.assert_allclose(values, unlagged.measured, atol=1e-9)
+    assert np.abs(problem.measured - unlagged.measured).max() > 1.0  # the lag is real
+    raw = dataclasses.replace(problem, lag_s=0.0)
+    np.testing.assert_array_equal(np.array([o.values for o in observations(raw)]), raw.measured)
+
+
+def _end_errors(spec, trials, grid, seed=3):
+    method = parse_method_spec(spec)
+    out = []
+    for i, trial in enumerate(trials):
+        result = run_trial(method, trial, grid, method_rng(seed, i, spec))
+        out.append(float(np.hypot(*(result.estimate[-1] - trial.truth[-1]))))
+    return np.array(out)
+
+
+def _rms_and_spread(errors):
+    """RMS of end errors and its 1-sigma sampling spread (delta method), metres."""
+    sq = np.asarray(errors) ** 2
+    rms = float(np.sqrt(sq.mean()))
+    return rms, float(sq.std(ddof=1) / np.sqrt(sq.size) / (2.0 * rms))
+
+
+@pytest.mark.parametrize("spec", ["pmf", "mpf:particles=2000"])
+def test_compensated_filters_end_as_on_the_unlagged_mission(missions, spec):
+    grid, pairs = missions
+    lagged = [a for a, _ in pairs]
+    clean = _end_errors(spec, [b for _, b in pairs], grid)
+    comp = _end_errors(spec, lagged, grid)
+    raw = _end_errors(spec, [dataclasses.replace(a, lag_s=0.0) for a in lagged], grid)
+    rms_clean, spread = _rms_and_spread(clean)
+    rms_comp, spread_comp = _rms_and_spread(comp)
+    assert abs(rms_comp - rms_clean) < 2.0 * np.hypot(spread, spread_comp)
+    # without the compensation the lagged readings pull every filter well off
+    assert _rms_and_spread(raw)[0] > rms_clean + 2.0 * spread
+
+
+def test_abc_mhd_keeps_its_own_lag_setting(missions):
+    grid, pairs = missions
+    lagged, unlagged = pairs[0]
+    problem = lagged.problem(grid)
+    # the problem's declared lag is not applied a second time
+    np.testing.assert_allclose(AbcMhd(lag_s=LAG_S)._measured(problem), unlagged.measured)
+    np.testing.assert_array_equal(AbcMhd()._measured(problem), problem.measured)
+
+
+def test_a_negative_lag_is_refused(missions):
+    grid, pairs = missions
+    with pytest.raises(ConfigError, match="lag_s"):
+        dataclasses.replace(pairs[0][0].problem(grid), lag_s=-1.0)
