@@ -113,3 +113,33 @@ def test_a_negative_lag_is_refused(missions):
     grid, pairs = missions
     with pytest.raises(ConfigError, match="lag_s"):
         dataclasses.replace(pairs[0][0].problem(grid), lag_s=-1.0)
+
+
+def test_the_navigator_undoes_the_lag_ping_by_ping_as_the_campaign_does(missions):
+    from geofix.filters.online import NavigatorSettings
+    from geofix.navigator import Navigator
+
+    grid, pairs = missions
+    lagged, _ = pairs[1]
+    seen = {}
+    for lag in (LAG_S, 0.0):
+        settings = NavigatorSettings(noise_std=1.0, lag_s=lag, max_pose_gap_s=None)
+        nav = Navigator(grid, "pmf", settings, seed=1)
+        values = seen.setdefault(lag, [])
+        update = nav.update
+
+        def spy(obs, t, update=update, values=values):
+            values.append(obs.values.copy())  # what the filter's update is handed
+            return update(obs, t)
+
+        nav.update = spy
+        nav.init(lagged.times[0], lagged.indicated[0], 300.0, lagged.indicated_heading[0])
+        for k in range(12):
+            if k:
+                nav.motion(lagged.times[k], lagged.indicated[k], lagged.indicated_heading[k])
+            nav.measure(lagged.times[k], [[0.0, 0.0, lagged.measured[k, 0]]])
+    got = np.ravel(seen[LAG_S])
+    np.testing.assert_allclose(got, lagged.unlagged_measured[:12, 0], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(np.ravel(seen[0.0]), lagged.measured[:12, 0])
+    with pytest.raises(ConfigError, match="lag_s"):
+        NavigatorSettings(lag_s=-5.0)

@@ -123,6 +123,13 @@ class NavigatorSettings:
     depth_bias_walk : float
         Variance the bias state gains per second, map units squared per second
         (default 1e-3: about 1 m over 15 minutes, a tide's rate).
+    lag_s : float
+        The sensor's first-order lag time constant, seconds (a damped gravimeter's
+        datasheet number; 0, the default: none). Each ping's values are compensated
+        causally before the update, ``x_k = (y_k - a y_{k-1}) / (1 - a)`` with
+        ``a = exp(-(t_k - t_{k-1}) / lag_s)`` and the first ping taken as settled, as a
+        campaign's filters do (:func:`geofix.measurement.lag_compensated`); a ping whose
+        beam count differs from the one before restarts the compensation.
     mount_offset_m : tuple of float
         The sensor's mounting offset from the navigation reference point, ``(across,
         along)`` or ``(across, along, down)`` metres in the body frame (starboard,
@@ -151,6 +158,7 @@ class NavigatorSettings:
     interpolation: str = "bilinear"
     depth_bias_std: float = 0.0
     depth_bias_walk: float = 1e-3
+    lag_s: float = 0.0
     mount_offset_m: tuple[float, ...] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
@@ -183,7 +191,7 @@ class NavigatorSettings:
             raise ConfigError(
                 f"navigator: interpolation must be bilinear or bicubic, got {self.interpolation!r}"
             )
-        for name in ("depth_bias_std", "depth_bias_walk"):
+        for name in ("depth_bias_std", "depth_bias_walk", "lag_s"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ConfigError(f"navigator: {name} must be finite and >= 0, got {value}")
@@ -439,6 +447,7 @@ class OnlineFilter:
         self._good_offset = np.zeros(2)
         self._pings = self._rejected = self._reinits = self._accepted_count = 0
         self._last: Estimate | None = None
+        self._lagged: tuple[float, np.ndarray] | None = None  # the last raw ping (t, values)
         self._reset_bias(0.0)
 
     def _min_beams(self, obs: Observation) -> int:
@@ -446,6 +455,18 @@ class OnlineFilter:
         if self.settings.min_beams is not None:
             return int(self.settings.min_beams)
         return 1 if obs.values.size == 1 else 3
+
+    def _unlagged(self, t: float, values: np.ndarray) -> np.ndarray:
+        """A ping's values with the sensor's first-order lag undone (``lag_s``)."""
+        lag = float(self.settings.lag_s)
+        if lag <= 0:
+            return values
+        previous = self._lagged
+        self._lagged = (t, values.copy())
+        if previous is None or previous[1].shape != values.shape or t <= previous[0]:
+            return values
+        a = np.exp(-(t - previous[0]) / lag)
+        return (values - a * previous[1]) / (1.0 - a)
 
     def _reset_bias(self, t: float) -> None:
         """The common-offset state back at its prior ``N(0, depth_bias_std^2)``."""
@@ -637,6 +658,7 @@ class OnlineFilter:
             )
         beams = self._beams(beams)
         offsets, values = self._level(beams, roll, pitch)
+        values = self._unlagged(t, values)
         var = self._noise_var(noise_var, values.shape[0])
         offsets, values, var = self._thin(offsets, values, var)
         if self.map_error is not None:
