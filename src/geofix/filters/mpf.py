@@ -24,8 +24,7 @@ Systems 45(4):
   noise of the exact discretisation handled in one step;
 - **update**: the terrain / gravity likelihood of every particle's footprints, the same
   code as the point-mass and particle filters
-  (:func:`~geofix.measurement.predict_measurements`,
-  :func:`~geofix.measurement.log_likelihood`, the likelihood flattening of
+  (:func:`~geofix.measurement.hypotheses_log_likelihood`, the likelihood flattening of
   :func:`~geofix.filters.pf.spread_field_variance` while the set is sparse); with an
   aiding DVL, the velocity measurement ``v_INS - v_DVL = C x_l + noise`` updates every
   Kalman filter (shared gain) and weighs each particle by its marginal likelihood
@@ -69,7 +68,7 @@ from geofix.filters.pf import (
     systematic_resample,
 )
 from geofix.maps.grid import Grid
-from geofix.measurement import log_likelihood, predict_measurements
+from geofix.measurement import hypotheses_log_likelihood, predict_measurements
 from geofix.nav.errstate import ErrorState, error_state, step_velocities
 from geofix.problem import MatchProblem
 
@@ -260,12 +259,14 @@ class Mpf(RecursiveFilter):
             state, log_weight = self._dvl_update(state, state.dvl[obs.index], log_weight)
         if np.isfinite(obs.values).any():
             positions = state.positions
-            predicted = predict_measurements(grid, positions, obs.heading, obs.offsets)
             var = obs.noise_var
             if self.discretisation_noise and state.spacing > 0:
                 view = PfState(positions, state.log_weight, state.cell, spacing=state.spacing)
                 var = var + spread_field_variance(grid, view, obs, rng)
-            log_weight = log_weight + log_likelihood(predicted, obs.values, var)
+            ll = hypotheses_log_likelihood(
+                grid, positions, obs.heading, obs.offsets, obs.values, var
+            )
+            log_weight = log_weight + ll
             evaluations += positions.shape[0]
         return replace(
             state, log_weight=log_weight - logsumexp(log_weight), evaluations=evaluations

@@ -9,11 +9,10 @@ r"""The bootstrap particle filter (PF): the same recursion as the PMF with weigh
   the particles along it, ``M`` their number, 2 the dimension); then every particle moves
   by the INS displacement plus a normal draw of per-axis variance ``Motion.process_var``
   (the bootstrap proposal: the motion prior);
-- **update**: the same measurement model as the PMF
-  (:func:`~geofix.measurement.predict_measurements` at every particle, every beam,
-  :func:`~geofix.measurement.log_likelihood` with off-map handling) is added to
-  the log-weights. Weights stay in log space; the estimate is the weighted mean and
-  covariance.
+- **update**: the same measurement model as the PMF (the map read at every particle,
+  every beam, and the Gaussian log-likelihood with off-map handling, in one compiled pass:
+  :func:`~geofix.measurement.hypotheses_log_likelihood`) is added to the log-weights.
+  Weights stay in log space; the estimate is the weighted mean and covariance.
 
 Resampling happens at the start of the prediction, so that the estimate after an update
 comes from the weighted set (less Monte-Carlo noise than from a freshly resampled one).
@@ -52,7 +51,7 @@ from scipy.special import logsumexp
 from geofix.errors import ConfigError, MatchError
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
-from geofix.measurement import log_likelihood, predict_measurements
+from geofix.measurement import hypotheses_log_likelihood, predict_measurements
 from geofix.problem import MatchProblem
 
 
@@ -203,11 +202,13 @@ class Pf(RecursiveFilter):
         """Add every particle's measurement log-likelihood (all beams at once)."""
         if not np.isfinite(obs.values).any():
             return state
-        predicted = predict_measurements(grid, state.particles, obs.heading, obs.offsets)
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         if self.discretisation_noise and state.spacing > 0:
             var = var + spread_field_variance(grid, state, obs, rng)
-        log_weight = state.log_weight + log_likelihood(predicted, obs.values, var)
+        ll = hypotheses_log_likelihood(
+            grid, state.particles, obs.heading, obs.offsets, obs.values, var
+        )
+        log_weight = state.log_weight + ll
         return replace(
             state,
             log_weight=log_weight - logsumexp(log_weight),

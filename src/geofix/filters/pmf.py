@@ -7,10 +7,12 @@ position hypotheses (Bergman 1999; Anonsen & Hallingstad for HUGIN). Each sample
   and the weights are convolved with the INS-error motion kernel, an isotropic Gaussian
   of per-axis variance ``Motion.process_var`` (separable, so two 1-D passes along the grid
   axes whatever their orientation);
-- **update**: the field every beam would read from every node is taken from the map at
-  once (:func:`~geofix.measurement.predict_measurements`) and the Gaussian
-  log-likelihood (:func:`~geofix.measurement.log_likelihood`, off-map footprints
-  penalised) is added to the log-weights. The variance is the sensor's plus the map's
+- **update**: the field every beam would read from every node is taken from the map and
+  the Gaussian log-likelihood (off-map footprints penalised) is added to the log-weights,
+  in one compiled pass over nodes and beams
+  (:func:`~geofix.measurement.node_grid_log_likelihood`, the same numbers as
+  :func:`~geofix.measurement.predict_measurements` followed by
+  :func:`~geofix.measurement.log_likelihood`). The variance is the sensor's plus the map's
   (``Observation.noise_var``) plus, by default, the spread of the field within one grid
   node (``discretisation_noise``; see :class:`Pmf`).
 
@@ -68,7 +70,7 @@ from geofix.filters import _grid_ops as ops
 from geofix.filters._pmf_errstate import conditional_motion, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
-from geofix.measurement import log_likelihood, predict_measurements
+from geofix.measurement import node_grid_log_likelihood, predict_measurements
 from geofix.nav.errstate import ErrorState, error_state
 from geofix.problem import MatchProblem
 
@@ -263,13 +265,20 @@ class Pmf(RecursiveFilter):
         """Add every node's measurement log-likelihood (all beams at once)."""
         if not np.isfinite(obs.values).any():
             return state
-        xy = ops.node_positions(*state.frame, state.shape)
-        predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
-        var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
-        if self.discretisation_noise:
-            var = var + node_field_variance(predicted, obs.values)
-        log_weight = ops.normalise(state.log_weight + log_likelihood(predicted, obs.values, var))
-        return replace(state, log_weight=log_weight, evaluations=state.evaluations + xy.size // 2)
+        # One compiled pass over nodes x beams (the reference path -- node_positions,
+        # predict_measurements, node_field_variance, log_likelihood -- bit for bit).
+        u, v = ops.node_offsets(state.shape, state.spacing)
+        ll, _ = node_grid_log_likelihood(
+            grid,
+            (state.centre, state.axes, u, v),
+            obs.heading,
+            obs.offsets,
+            obs.values,
+            obs.noise_var,
+            self.discretisation_noise,
+        )
+        log_weight = ops.normalise(state.log_weight + ll)
+        return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
 
     def estimate(self, state: PmfState) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2."""
