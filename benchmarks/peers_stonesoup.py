@@ -16,6 +16,12 @@ sides share the map reading and differ only in the filter machinery:
 - ``ParticlePredictor`` / ``ParticleUpdater`` with ``ESSResampler`` (systematic, ESS < M/2),
   the same number of particles as our ``pf``, no regulariser.
 
+Identical likelihood: our ``pmf`` and ``pf`` run here with ``discretisation_noise=False``
+(Stone Soup has no such term), so both sides weigh every hypothesis by the same Gaussian
+of the same beams with the same variance; our grid and particle count are fixed
+(``max_points = points``, ``max_particles = particles``) as Stone Soup's are. The time
+ratio (Stone Soup's time per trial over ours, same trials, same run) is printed per filter.
+
 Usage::
 
     python benchmarks/peers_stonesoup.py --scenario azores-demo --trials 10 --points 61
@@ -199,8 +205,9 @@ def compare(scen, trials: int, points: int = 61, particles: int = 5000) -> dict:
 
     grid = prepare_map(scen)
     # Same grid size and particle count as the peers: no adaptive growth.
-    ours_pmf = Pmf(points=points, max_points=points)
-    ours_pf = Pf(particles=particles, max_particles=particles)
+    # Identical likelihood: no discretisation noise (Stone Soup has none).
+    ours_pmf = Pmf(points=points, max_points=points, discretisation_noise=False)
+    ours_pf = Pf(particles=particles, max_particles=particles, discretisation_noise=False)
     runs = {
         "geofix pmf": lambda p, r: ours_pmf.match(p, r).track,
         "stonesoup pmf": lambda p, r: stonesoup_pmf(p, points, ours_pmf.extent_sigmas),
@@ -251,13 +258,24 @@ def main() -> None:
         scen = load_scenario(resources.files("geofix") / "scenarios" / "azores_demo.yaml")
     else:
         scen = scenario(args.scenario)
-    for label, rec in compare(scen, args.trials, args.points, args.particles).items():
+    result = compare(scen, args.trials, args.points, args.particles)
+    for label, rec in result.items():
         e = rec["end_errors"]
         rms = float(np.sqrt(np.nanmean(e**2))) if np.isfinite(e).any() else float("nan")
         print(
             f"{label:14s} RMS end error {rms:9.2f} m   time/trial {rec['times'].mean():7.3f} s"
             f"   failures {rec['failures']} {rec['message'][:80]}"
         )
+    for name, ratio in time_ratios(result).items():
+        print(f"{name}: Stone Soup time / ours {ratio:6.2f}")
+
+
+def time_ratios(result: dict) -> dict:
+    """``{"pmf": r, "pf": r}``: Stone Soup's mean time per trial over ours (same run)."""
+    return {
+        f: float(result[f"stonesoup {f}"]["times"].mean() / result[f"geofix {f}"]["times"].mean())
+        for f in ("pmf", "pf")
+    }
 
 
 if __name__ == "__main__":

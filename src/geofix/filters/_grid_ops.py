@@ -50,16 +50,17 @@ def gaussian_log_density(positions, mean, cov) -> np.ndarray:
     return -0.5 * quad - 0.5 * np.log(np.linalg.det(2.0 * np.pi * cov))
 
 
-def moments(log_weight, centre, axes, spacing) -> tuple[np.ndarray, np.ndarray]:
+def moments(log_weight, centre, axes, spacing, offsets=None) -> tuple[np.ndarray, np.ndarray]:
     """Mean ``(2,)`` (metres) and covariance ``(2, 2)`` (m^2) of a normalised grid.
 
     The covariance includes the grid's own resolution, ``spacing^2 / 12`` per axis (the
     variance of a position spread uniformly over one node's cell), so that a posterior
     collapsed on one node still reports the uncertainty its grid can resolve.
+    ``offsets`` is the grid's ``node_offsets`` when the caller has it already.
     """
     w = np.exp(log_weight - log_weight.max())
     w /= w.sum()
-    u, v = node_offsets(w.shape, spacing)
+    u, v = node_offsets(w.shape, spacing) if offsets is None else offsets
     wu, wv = w.sum(axis=1), w.sum(axis=0)
     mu = np.array([wu @ u, wv @ v])
     du, dv = u - mu[0], v - mu[1]

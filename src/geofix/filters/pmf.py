@@ -59,6 +59,7 @@ posterior lies farther than ``ambiguity_radius_cells`` map cells from the poster
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
@@ -126,6 +127,19 @@ class PmfState:
     def shape(self) -> tuple[int, int]:
         """Nodes along each grid axis ``(N0, N1)``."""
         return self.log_weight.shape
+
+    @functools.cached_property
+    def node_offsets(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(u (N0,), v (N1,))`` node coordinates along the grid axes, metres (cached)."""
+        return ops.node_offsets(self.shape, self.spacing)
+
+    @functools.cached_property
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2.
+
+        Cached: the state is immutable, and every step asks for them more than once.
+        """
+        return ops.moments(self.log_weight, *self.frame, offsets=self.node_offsets)
 
 
 @dataclass(frozen=True)
@@ -267,7 +281,7 @@ class Pmf(RecursiveFilter):
             return state
         # One compiled pass over nodes x beams (the reference path -- node_positions,
         # predict_measurements, node_field_variance, log_likelihood -- bit for bit).
-        u, v = ops.node_offsets(state.shape, state.spacing)
+        u, v = state.node_offsets
         ll, _ = node_grid_log_likelihood(
             grid,
             (state.centre, state.axes, u, v),
@@ -282,7 +296,8 @@ class Pmf(RecursiveFilter):
 
     def estimate(self, state: PmfState) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2."""
-        return ops.moments(state.log_weight, *state.frame)
+        mean, cov = state.moments
+        return mean.copy(), cov.copy()
 
     def is_ambiguous(self, state: PmfState) -> bool:
         """More than ``ambiguity_mass`` of the posterior beyond the radius around the mean."""
@@ -396,7 +411,10 @@ class Pmf(RecursiveFilter):
         one node spacing.
         """
         keep = state.log_weight >= state.log_weight.max() - self.support_nats
-        xy = ops.node_positions(*state.frame, state.shape)[keep]
+        i, j = np.nonzero(keep)
+        u, v = state.node_offsets
+        # the kept rows of node_positions(*state.frame, state.shape), element for element
+        xy = state.centre + u[i, None] * state.axes[:, 0] + v[j, None] * state.axes[:, 1]
         reach = np.abs((xy - centre) @ axes).max(axis=0)
         return reach + state.spacing.max()
 
