@@ -7,7 +7,7 @@ from scipy.special import logsumexp
 
 from geofix.filters import _grid_ops as ops
 from geofix.filters.base import Observation
-from geofix.filters.pf import Pf, PfState
+from geofix.filters.pf import Pf, PfState, log_normalised
 from geofix.filters.pmf import Pmf, PmfState, node_field_variance
 from geofix.maps.grid import Grid
 from geofix.measurement import (
@@ -96,3 +96,15 @@ def test_pmf_and_pf_updates_are_the_reference_updates():
     ll = log_likelihood(predict_measurements(grid, particles, 0.3, offsets), measured, var_b)
     raw = weights + ll
     np.testing.assert_array_equal(updated.log_weight, raw - logsumexp(raw))
+
+
+def test_log_normalised_is_scipys_logsumexp_bit_for_bit():
+    rng = np.random.default_rng(14)
+    for trial in range(200):
+        a = rng.normal(0.0, 10.0 ** rng.uniform(-3, 4), rng.integers(1, 2000))
+        if trial % 3 == 0:
+            a[rng.integers(0, a.size, 3)] = a.max()  # ties at the maximum
+        if trial % 4 == 0:
+            a[: a.size // 2] = -1e6  # off-map hypotheses
+        np.testing.assert_array_equal(log_normalised(a), a - logsumexp(a))
+    np.testing.assert_array_equal(log_normalised(np.full(3, -np.inf)), np.full(3, np.nan))

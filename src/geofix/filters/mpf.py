@@ -51,11 +51,11 @@ estimate is the weighted mean and covariance of the particle positions.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
-from scipy.special import logsumexp
 from threadpoolctl import threadpool_limits
 
 from geofix.errors import ConfigError, MatchError
@@ -64,6 +64,7 @@ from geofix.filters.pf import (
     PfState,
     effective_sample_size,
     linear_weights,
+    log_normalised,
     spread_field_variance,
     systematic_resample,
 )
@@ -124,10 +125,12 @@ class MpfState:
         """``(M, 2)`` absolute particle positions, metres."""
         return self.indicated - self.dp
 
-    @property
+    @functools.cached_property
     def weights(self) -> np.ndarray:
-        """``(M,)`` linear weights summing to one."""
-        return linear_weights(self.log_weight)
+        """``(M,)`` linear weights summing to one (read-only, computed once per state)."""
+        w = linear_weights(self.log_weight)
+        w.setflags(write=False)
+        return w
 
 
 @dataclass(frozen=True)
@@ -220,7 +223,7 @@ class Mpf(RecursiveFilter):
             dp=dp,
             linear=_times(dp, gain),
             cov=_sym(p0[_L, _L] - gain @ p0[_P, _L]),
-            log_weight=log_weight - logsumexp(log_weight),
+            log_weight=log_normalised(log_weight),
             indicated=start,
             step=0,
             model=es,
@@ -268,9 +271,7 @@ class Mpf(RecursiveFilter):
             )
             log_weight = log_weight + ll
             evaluations += positions.shape[0]
-        return replace(
-            state, log_weight=log_weight - logsumexp(log_weight), evaluations=evaluations
-        )
+        return replace(state, log_weight=log_normalised(log_weight), evaluations=evaluations)
 
     def estimate(self, state: MpfState) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean ``(2,)`` and covariance ``(2, 2)`` of the positions, m and m^2."""

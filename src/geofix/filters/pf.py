@@ -42,6 +42,7 @@ handed to the filter.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
@@ -82,10 +83,20 @@ class PfState:
     evaluations: int = 0
     resamples: int = 0
 
-    @property
+    @functools.cached_property
     def weights(self) -> np.ndarray:
-        """``(M,)`` linear weights summing to one."""
-        return linear_weights(self.log_weight)
+        """``(M,)`` linear weights summing to one (read-only, computed once per state)."""
+        w = linear_weights(self.log_weight)
+        w.setflags(write=False)
+        return w
+
+    @functools.cached_property
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean ``(2,)`` and covariance ``(2, 2)``, m and m^2 (once per state)."""
+        w = self.weights
+        mean = w @ self.particles
+        d = self.particles - mean
+        return mean, (d * w[:, None]).T @ d
 
 
 @dataclass(frozen=True)
@@ -179,7 +190,7 @@ class Pf(RecursiveFilter):
         ).any():
             raise MatchError("pf: the prior particles lie entirely off the map")
         log_weight = -0.5 * np.sum((particles - start) ** 2, axis=1) / sigma**2
-        return PfState(particles, log_weight - logsumexp(log_weight), cell, spacing=h)
+        return PfState(particles, log_normalised(log_weight), cell, spacing=h)
 
     def particle_count(self, area: float, cell: float) -> int:
         """Particles for a posterior box of ``area`` m^2 on a map of ``cell`` metres.
@@ -211,16 +222,14 @@ class Pf(RecursiveFilter):
         log_weight = state.log_weight + ll
         return replace(
             state,
-            log_weight=log_weight - logsumexp(log_weight),
+            log_weight=log_normalised(log_weight),
             evaluations=state.evaluations + state.particles.shape[0],
         )
 
     def estimate(self, state: PfState) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2."""
-        w = state.weights
-        mean = w @ state.particles
-        d = state.particles - mean
-        return mean, (d * w[:, None]).T @ d
+        mean, cov = state.moments
+        return mean.copy(), cov.copy()
 
     def is_ambiguous(self, state: PfState) -> bool:
         """More than ``ambiguity_mass`` of the weight beyond the radius around the mean."""
@@ -255,6 +264,27 @@ def linear_weights(log_weight: np.ndarray) -> np.ndarray:
     """Linear weights summing to one from log-weights (shifted by their maximum first)."""
     w = np.exp(log_weight - log_weight.max())
     return w / w.sum()
+
+
+def log_normalised(log_weight: np.ndarray) -> np.ndarray:
+    """``log_weight - scipy.special.logsumexp(log_weight)`` for ``(M,)`` log-weights.
+
+    The same numbers, bit for bit, as scipy's ``logsumexp`` (its maximum terms kept out
+    of the sum: ``log1p(s) + log(m) + max``, ``m`` the count of maximal entries, ``s`` the
+    sum of the others' ``exp(a - max)`` over ``m``) without its generic-array overhead,
+    which dominates a few-thousand-particle step; a non-finite maximum goes to scipy.
+    """
+    top = log_weight.max()
+    if not np.isfinite(top):
+        return log_weight - logsumexp(log_weight)
+    at_top = log_weight == top
+    count = float(np.count_nonzero(at_top))
+    shifted = log_weight - top
+    shifted[at_top] = -np.inf
+    total = np.exp(shifted).sum()
+    if total != 0:
+        total = total / count
+    return log_weight - (np.log1p(total) + np.log(count) + top)
 
 
 def effective_sample_size(weights: np.ndarray) -> float:
