@@ -17,12 +17,12 @@ position hypotheses (Bergman 1999; Anonsen & Hallingstad for HUGIN). Each sample
   node (``discretisation_noise``; see :class:`Pmf`).
 
 Everything stays in log space (:mod:`geofix.filters._grid_ops`), so a likelihood however
-peaked gives no underflow and no NaN. The convolution is two direct 1-D passes
-(``scipy.ndimage.correlate1d``) rather than an FFT: profiled on the 61 x 61 grid with
-kernels of 3 to 73 taps it takes 0.4-0.9 ms a step against 0.5-1.5 ms for
-``scipy.signal.fftconvolve``, and as a sum of non-negative terms it is exact in the tails,
-where FFT round-off (1e-16 of the peak) would plant mass that later likelihoods, added in
-log space, could amplify.
+peaked gives no underflow and no NaN. The convolution is two direct 1-D passes (compiled
+with the rest of the step's grid loops, :mod:`geofix.filters._grid_kernels`) rather than
+an FFT: on the 61 x 61 grid with kernels of 3 to 73 taps direct passes were faster than
+``scipy.signal.fftconvolve``, and as a sum of non-negative terms they are exact in the
+tails, where FFT round-off (1e-16 of the peak) would plant mass that later likelihoods,
+added in log space, could amplify.
 
 **The grid follows the posterior.** Before each prediction the posterior mean ``m`` and
 covariance ``P`` are computed; the ideal grid is centred on ``m``, its axes along the
@@ -60,6 +60,7 @@ posterior lies farther than ``ambiguity_radius_cells`` map cells from the poster
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
@@ -67,6 +68,7 @@ import numpy as np
 
 from geofix._measurement_kernels import node_field_variance_kernel
 from geofix.errors import ConfigError, MatchError
+from geofix.filters import _grid_kernels as grid_kernels
 from geofix.filters import _grid_ops as ops
 from geofix.filters._pmf_errstate import conditional_motion, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
@@ -410,12 +412,18 @@ class Pmf(RecursiveFilter):
         ``(2,)`` metres: every node within ``support_nats`` of the peak log-weight, plus
         one node spacing.
         """
-        keep = state.log_weight >= state.log_weight.max() - self.support_nats
-        i, j = np.nonzero(keep)
+        threshold = float(state.log_weight.max() - self.support_nats)
         u, v = state.node_offsets
-        # the kept rows of node_positions(*state.frame, state.shape), element for element
-        xy = state.centre + u[i, None] * state.axes[:, 0] + v[j, None] * state.axes[:, 1]
-        reach = np.abs((xy - centre) @ axes).max(axis=0)
+        reach = grid_kernels.support_reach(
+            state.log_weight,
+            threshold,
+            state.centre,
+            state.axes,
+            u,
+            v,
+            np.asarray(centre, dtype=float),
+            np.ascontiguousarray(axes, dtype=float),
+        )
         return reach + state.spacing.max()
 
     def grid_layout(self, half_extent: np.ndarray, cell: float) -> tuple:
@@ -442,15 +450,24 @@ class Pmf(RecursiveFilter):
         """True when ``state``'s grid is too far from ``frame`` in spacing, size or position."""
         centre, axes, spacing = frame
         basis = state.axes * state.spacing
-        stretch = np.linalg.svd(np.linalg.solve(basis, axes * spacing), compute_uv=False)
-        if np.max(np.abs(np.log(stretch))) > np.log(self.regrid_ratio):
+        # one solve for the new node steps and the shift, in units of the current steps
+        solved = np.linalg.solve(basis, np.column_stack([axes * spacing, centre - state.centre]))
+        limit = math.log(self.regrid_ratio)
+        if max(abs(math.log(s)) if s > 0 else math.inf for s in _singular_values(solved)) > limit:
             return True
         size = np.log(np.sort(np.array(shape) - 1) / np.sort(np.array(state.shape) - 1))
-        if np.max(np.abs(size)) > np.log(self.regrid_ratio):
+        if np.max(np.abs(size)) > limit:
             return True
-        shift = np.linalg.solve(basis, centre - state.centre)
         half = 0.5 * (np.array(state.shape) - 1)
-        return bool(np.max(np.abs(shift) / half) > self.regrid_shift)
+        return bool(np.max(np.abs(solved[:, 2]) / half) > self.regrid_shift)
+
+
+def _singular_values(m: np.ndarray) -> tuple[float, float]:
+    """Singular values of the ``2 x 2`` matrix ``m[:, :2]`` (closed form, ``>= 0``)."""
+    (a, b), (c, d) = m[0, :2].tolist(), m[1, :2].tolist()
+    p, q, r = a * a + c * c, a * b + c * d, b * b + d * d  # m^T m
+    mid, dev = 0.5 * (p + r), math.hypot(0.5 * (p - r), q)
+    return math.sqrt(mid + dev), math.sqrt(max(mid - dev, 0.0))
 
 
 def node_field_variance(predicted: np.ndarray, measured: np.ndarray) -> float:
