@@ -6,8 +6,9 @@ import pytest
 from scipy.special import logsumexp
 
 from geofix.filters import _grid_ops as ops
+from geofix.filters import _particle_kernels as particle_kernels
 from geofix.filters.base import Observation
-from geofix.filters.pf import Pf, PfState, log_normalised
+from geofix.filters.pf import Pf, PfState, log_normalised, systematic_resample
 from geofix.filters.pmf import Pmf, PmfState, node_field_variance
 from geofix.maps.grid import Grid
 from geofix.measurement import (
@@ -109,3 +110,26 @@ def test_log_normalised_is_scipys_logsumexp_bit_for_bit():
         np.testing.assert_array_equal(log_normalised(a), a - logsumexp(a))
     with np.errstate(invalid="ignore"):  # -inf - -inf: scipy's answer, NaN
         np.testing.assert_array_equal(log_normalised(np.full(3, -np.inf)), np.full(3, np.nan))
+
+
+def test_compiled_particle_move_and_resample_are_the_numpy_expressions():
+    rng = np.random.default_rng(15)
+    particles = rng.normal(0.0, 300.0, (997, 2))
+    draws = rng.standard_normal(particles.shape)
+    moved = particle_kernels.moved(particles, np.array([3.3, -1.7]), 0.37, draws)
+    np.testing.assert_array_equal(moved, particles + np.array([3.3, -1.7]) + 0.37 * draws)
+    for count in (1, 50, 997, 3001):
+        w = rng.exponential(1.0, 997) ** 3
+        w[rng.integers(0, 997, 100)] = 0.0  # empty slices
+        w /= w.sum()
+        u = rng.random()
+        cumulative = np.cumsum(w)
+        cumulative[-1] = 1.0
+        got = systematic_resample(w, np.random.default_rng(np.random.SeedSequence(0)), count)
+        ref = np.random.default_rng(np.random.SeedSequence(0)).random()
+        want = np.searchsorted(cumulative, (ref + np.arange(count)) / count, side="right")
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(
+            particle_kernels.systematic_indices(cumulative, u, count),
+            np.searchsorted(cumulative, (u + np.arange(count)) / count, side="right"),
+        )

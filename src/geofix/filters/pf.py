@@ -50,6 +50,7 @@ import numpy as np
 from scipy.special import logsumexp
 
 from geofix.errors import ConfigError, MatchError
+from geofix.filters import _particle_kernels as kernels
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
 from geofix.measurement import hypotheses_log_likelihood, predict_measurements
@@ -205,8 +206,14 @@ class Pf(RecursiveFilter):
         count = state.particles.shape[0]
         if effective_sample_size(state.weights) < self.resample_threshold * count:
             state = self._resample(state, rng)
-        noise = np.sqrt(motion.process_var) * rng.standard_normal(state.particles.shape)
-        particles = state.particles + np.asarray(motion.displacement, dtype=float) + noise
+        draws = rng.standard_normal(state.particles.shape)
+        displacement = np.asarray(motion.displacement, dtype=float)
+        particles = kernels.moved(
+            np.ascontiguousarray(state.particles, dtype=float),
+            displacement,
+            float(np.sqrt(motion.process_var)),
+            draws,
+        )  # state.particles + displacement + sqrt(process_var) * draws, one pass
         return replace(state, particles=particles)
 
     def update(self, state: PfState, obs: Observation, grid: Grid, rng) -> PfState:
@@ -300,10 +307,11 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count=Non
     weights, so it appears ``floor(count w_i)`` or ``ceil(count w_i)`` times.
     """
     m = weights.shape[0] if count is None else int(count)
-    pointers = (rng.random() + np.arange(m)) / m
+    u = rng.random()
     cumulative = np.cumsum(weights)
     cumulative[-1] = 1.0
-    return np.searchsorted(cumulative, pointers, side="right")
+    # searchsorted(cumulative, (u + arange(m)) / m, side="right") in one merge pass
+    return kernels.systematic_indices(cumulative, float(u), m)
 
 
 FIELD_VARIANCE_SUBSET = 2000
