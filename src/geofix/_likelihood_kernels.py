@@ -18,10 +18,62 @@ import numpy as np
 from geofix.maps.mapread import bilinear_at
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _read_inside(values, c, r):  # pragma: no cover - compiled
+    """``bilinear_at(values, c, r)`` where ``0 <= c < nx - 1`` and ``0 <= r < ny - 1``.
+
+    No checks: there the stencil is the same (``c0 = int(c)``), and so is every operation.
+    """
+    c0 = int(c)
+    r0 = int(r)
+    fc = c - c0
+    fr = r - r0
+    return (values[r0, c0] * (1 - fc) + values[r0, c0 + 1] * fc) * (1 - fr) + (
+        values[r0 + 1, c0] * (1 - fc) + values[r0 + 1, c0 + 1] * fc
+    ) * fr
+
+
 @numba.njit(cache=True, nogil=True)
-def _beam_sum(values, col, row, bcol, brow, measured, var, off_map):  # pragma: no cover
-    """Log-likelihood of the beams from one hypothesis at fractional cell ``(col, row)``."""
+def _widen(bounds, c, r):  # pragma: no cover - compiled
+    """Grow ``bounds`` ``[cmin, cmax, rmin, rmax]`` to hold the cell ``(c, r)``."""
+    bounds[0] = min(bounds[0], c)
+    bounds[1] = max(bounds[1], c)
+    bounds[2] = min(bounds[2], r)
+    bounds[3] = max(bounds[3], r)
+
+
+@numba.njit(cache=True, nogil=True)
+def _all_inside(values, bounds, bcol, brow):  # pragma: no cover - compiled
+    """True when every footprint ``(c + bcol, r + brow)`` is strictly inside the stencil range.
+
+    ``bounds`` ``[cmin, cmax, rmin, rmax]`` bound the (finite) hypotheses' cells. Rounded
+    addition is monotone, so the sums of the bounds bound every footprint; strictly below
+    ``n - 1``, ``int`` of a footprint is its stencil's first cell.
+    """
+    ny, nx = values.shape
+    if bcol.shape[0] == 0:
+        return False
+    return (
+        bounds[0] + bcol.min() >= 0.0
+        and bounds[2] + brow.min() >= 0.0
+        and bounds[1] + bcol.max() < nx - 1
+        and bounds[3] + brow.max() < ny - 1
+    )
+
+
+@numba.njit(cache=True, nogil=True)
+def _beam_sum(values, col, row, bcol, brow, measured, var, off_map, inside):  # pragma: no cover
+    """Log-likelihood of the beams from one hypothesis at fractional cell ``(col, row)``.
+
+    ``inside``: every footprint is known to lie inside the stencil range (no checks).
+    """
     acc = 0.0
+    if inside:
+        for j in range(measured.shape[0]):
+            d = _read_inside(values, col + bcol[j], row + brow[j]) - measured[j]
+            term = -0.5 * d * d / var[j]
+            acc += term if np.isfinite(term) else off_map
+        return acc
     for j in range(measured.shape[0]):
         d = bilinear_at(values, col + bcol[j], row + brow[j]) - measured[j]
         term = -0.5 * d * d / var[j]
@@ -32,10 +84,21 @@ def _beam_sum(values, col, row, bcol, brow, measured, var, off_map):  # pragma: 
 @numba.njit(cache=True, nogil=True)
 def hypotheses_ll(values, origin, cell, px, py, bcol, brow, measured, var, off_map, out):
     """``out[i]``: log-likelihood from position ``(px[i], py[i])``, metres."""
-    for i in range(px.shape[0]):  # pragma: no cover - compiled
-        col = (px[i] - origin[0]) / cell[0]
-        row = (py[i] - origin[1]) / cell[1]
-        out[i] = _beam_sum(values, col, row, bcol, brow, measured, var, off_map)
+    n = px.shape[0]  # pragma: no cover - compiled
+    cols = np.empty(n)
+    rows = np.empty(n)
+    bounds = np.array([np.inf, -np.inf, np.inf, -np.inf])
+    finite = True
+    for i in range(n):
+        c = (px[i] - origin[0]) / cell[0]
+        r = (py[i] - origin[1]) / cell[1]
+        cols[i] = c
+        rows[i] = r
+        finite = finite and c == c and r == r
+        _widen(bounds, c, r)
+    inside = finite and _all_inside(values, bounds, bcol, brow)
+    for i in range(n):
+        out[i] = _beam_sum(values, cols[i], rows[i], bcol, brow, measured, var, off_map, inside)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -47,21 +110,39 @@ def _node_cell(origin, cell, centre, axes, u, v, i, j):  # pragma: no cover - co
 
 
 @numba.njit(cache=True, nogil=True)
-def node_ll(values, origin, cell, centre, axes, u, v, bcol, brow, measured, var, off_map, out):
-    """``out[i, j]``: log-likelihood from node ``[i, j]`` of a point-mass grid."""
-    for i in range(u.shape[0]):  # pragma: no cover - compiled
+def _nodes_inside(values, origin, cell, centre, axes, u, v, bcol, brow):  # pragma: no cover
+    """True when every footprint of every node is inside the map's stencil range."""
+    bounds = np.array([np.inf, -np.inf, np.inf, -np.inf])
+    for i in range(u.shape[0]):
         for j in range(v.shape[0]):
-            col, row = _node_cell(origin, cell, centre, axes, u, v, i, j)
-            out[i, j] = _beam_sum(values, col, row, bcol, brow, measured, var, off_map)
+            c, r = _node_cell(origin, cell, centre, axes, u, v, i, j)
+            if not (c == c and r == r):
+                return False
+            _widen(bounds, c, r)
+    return _all_inside(values, bounds, bcol, brow)
 
 
 @numba.njit(cache=True, nogil=True)
-def _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, i, p):
+def node_ll(values, origin, cell, centre, axes, u, v, bcol, brow, measured, var, off_map, out):
+    """``out[i, j]``: log-likelihood from node ``[i, j]`` of a point-mass grid."""
+    inside = _nodes_inside(values, origin, cell, centre, axes, u, v, bcol, brow)
+    for i in range(u.shape[0]):  # pragma: no cover - compiled
+        for j in range(v.shape[0]):
+            col, row = _node_cell(origin, cell, centre, axes, u, v, i, j)
+            out[i, j] = _beam_sum(values, col, row, bcol, brow, measured, var, off_map, inside)
+
+
+@numba.njit(cache=True, nogil=True)
+def _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, i, p, inside):
     """``p[i, j, k]``: the map read by beam ``k`` from node ``[i, j]``, for one row ``i``."""
     for j in range(v.shape[0]):  # pragma: no cover - compiled
         col, row = _node_cell(origin, cell, centre, axes, u, v, i, j)
-        for k in range(bcol.shape[0]):
-            p[i, j, k] = bilinear_at(values, col + bcol[k], row + brow[k])
+        if inside:
+            for k in range(bcol.shape[0]):
+                p[i, j, k] = _read_inside(values, col + bcol[k], row + brow[k])
+        else:
+            for k in range(bcol.shape[0]):
+                p[i, j, k] = bilinear_at(values, col + bcol[k], row + brow[k])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -78,10 +159,12 @@ def node_ll_flattened(
     n0, n1, b = u.shape[0], v.shape[0], bcol.shape[0]
     acc0 = acc1 = 0.0
     count0 = count1 = 0
-    _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, 0, p)
+    inside = _nodes_inside(values, origin, cell, centre, axes, u, v, bcol, brow)
+    _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, 0, p, inside)
     for i in range(n0):
         if i + 1 < n0:
-            _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, i + 1, p)
+            args = (values, origin, cell, centre, axes, u, v, bcol, brow, i + 1, p, inside)
+            _node_predictions(*args)
             for j in range(n1):
                 for k in range(b):
                     d = p[i + 1, j, k] - p[i, j, k]

@@ -17,6 +17,7 @@ from geofix.measurement import (
     node_grid_log_likelihood,
     predict_measurements,
 )
+from geofix.problem import footprint_xy
 
 BEAMS = 23
 
@@ -34,24 +35,30 @@ def _beams(rng):
     return offsets, measured, rng.uniform(0.5, 9.0, BEAMS)
 
 
-def _frame(theta=0.4):
+def _frame(theta=0.4, inside=False):
     axes = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
-    # the grid's corner reaches off the map: off-map nodes are in the sums
-    return np.array([100.0, 410.0]), axes, np.array([6.3, 4.1]), (21, 17)
+    # off the map: the port beams of the western nodes read off the map (checked reads);
+    # inside: every footprint on the map (the unchecked reads), the no-data hole still read
+    centre = np.array([250.0, 420.0]) if inside else np.array([100.0, 410.0])
+    return centre, axes, np.array([6.3, 4.1]), (21, 17)
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 @pytest.mark.parametrize("per_beam", [False, True])
 @pytest.mark.parametrize("field_variance", [False, True])
-def test_node_grid_log_likelihood_is_the_reference(dtype, per_beam, field_variance):
+@pytest.mark.parametrize("inside", [False, True])
+def test_node_grid_log_likelihood_is_the_reference(dtype, per_beam, field_variance, inside):
     rng = np.random.default_rng(11)
     grid = _map(rng, dtype)
     offsets, measured, var_b = _beams(rng)
     var = var_b if per_beam else 2.5
-    centre, axes, spacing, shape = _frame()
+    centre, axes, spacing, shape = _frame(inside=inside)
     xy = ops.node_positions(centre, axes, spacing, shape)
     predicted = predict_measurements(grid, xy, 0.7, offsets)
     assert np.isnan(predicted).any() and np.isfinite(predicted).any()
+    x, _ = footprint_xy(xy.reshape(-1, 2), np.full(xy.size // 2, 0.7), offsets)
+    on_map = (x >= grid.x0) & (x < grid.x0 + (grid.shape[1] - 1) * grid.dx)
+    assert on_map.all() == inside
     field = node_field_variance(predicted, measured) if field_variance else 0.0
     reference = log_likelihood(predicted, measured, var + field)
     u, v = ops.node_offsets(shape, spacing)
@@ -74,6 +81,11 @@ def test_hypotheses_log_likelihood_is_the_reference(per_beam):
     fused = hypotheses_log_likelihood(grid, positions, -1.1, offsets, measured, var)
     assert fused.shape == (3, 500)
     assert (reference < -1e5).any()  # some hypotheses read off the map
+    np.testing.assert_array_equal(fused, reference)
+    near = np.array([250.0, 420.0]) + rng.normal(0.0, 20.0, (400, 2))  # all on the map
+    reference = log_likelihood(predict_measurements(grid, near, 0.2, offsets), measured, var)
+    assert np.isfinite(reference).all() and (reference < -1e5).any()  # the hole is read
+    fused = hypotheses_log_likelihood(grid, near, 0.2, offsets, measured, var)
     np.testing.assert_array_equal(fused, reference)
 
 
