@@ -282,7 +282,7 @@ class Pmf(RecursiveFilter):
         if not np.isfinite(obs.values).any():
             return state
         # One compiled pass over nodes x beams (the reference path -- node_positions,
-        # predict_measurements, node_field_variance, log_likelihood -- bit for bit).
+        # predict_measurements, node_field_variance, log_likelihood -- to ~1e-15 relative).
         u, v = state.node_offsets
         ll, _ = node_grid_log_likelihood(
             grid,
