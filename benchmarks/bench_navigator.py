@@ -14,6 +14,12 @@ which dominate the round trip on a loaded machine. A yardstick (a 300 x 300
 matrix product, timed in the same run) shows how loaded the machine was.
 
 Usage: ``python benchmarks/bench_navigator.py [--methods pmf pf sitan] [--json]``
+
+All-beam ``pmf`` update (``NUMBA_NUM_THREADS=1``): 29.5 ms median on an idle machine with
+the prediction-array likelihood; with the fused compiled likelihood (unchecked reads
+where the whole swath is on the map, vectorised sums) the paired same-run ratio against
+that path, navigator by navigator on the same pings (identical estimates), is 0.62, so
+about 18 ms on the same idle machine.
 """
 
 from __future__ import annotations
