@@ -18,8 +18,9 @@ Usage: ``python benchmarks/bench_navigator.py [--methods pmf pf sitan] [--json]`
 All-beam ``pmf`` update (``NUMBA_NUM_THREADS=1``): 29.5 ms median on an idle machine with
 the prediction-array likelihood; with the fused compiled likelihood (unchecked reads
 where the whole swath is on the map, vectorised sums) the paired same-run ratio against
-that path, navigator by navigator on the same pings (identical estimates), is 0.62, so
-about 18 ms on the same idle machine.
+that path (``bench_fused_likelihood.py``: navigator by navigator on the same pings,
+estimates within 1e-13 m) was 0.57-0.71 over six runs on a busy machine, so about
+17-21 ms on the idle one.
 """
 
 from __future__ import annotations
