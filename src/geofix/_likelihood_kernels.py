@@ -62,7 +62,7 @@ def _all_inside(values, bounds, bcol, brow):  # pragma: no cover - compiled
     )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, inline="always")
 def _beam_sum(values, col, row, bcol, brow, measured, var, off_map, inside, buffer):
     """Log-likelihood of the beams from one hypothesis at fractional cell ``(col, row)``.
 
@@ -96,8 +96,8 @@ def hypotheses_ll(values, origin, cell, px, py, bcol, brow, measured, var, off_m
     inside = finite and _all_inside(values, bounds, bcol, brow)
     buffer = np.empty(measured.shape[0])
     for i in range(n):
-        args = (values, cols[i], rows[i], bcol, brow, measured, var, off_map, inside, buffer)
-        out[i] = _beam_sum(*args)
+        c, r = cols[i], rows[i]
+        out[i] = _beam_sum(values, c, r, bcol, brow, measured, var, off_map, inside, buffer)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -129,8 +129,8 @@ def node_ll(values, origin, cell, centre, axes, u, v, bcol, brow, measured, var,
     for i in range(u.shape[0]):  # pragma: no cover - compiled
         for j in range(v.shape[0]):
             col, row = _node_cell(origin, cell, centre, axes, u, v, i, j)
-            args = (values, col, row, bcol, brow, measured, var, off_map, inside, buffer)
-            out[i, j] = _beam_sum(*args)
+            c, r = col, row
+            out[i, j] = _beam_sum(values, c, r, bcol, brow, measured, var, off_map, inside, buffer)
 
 
 @numba.njit(cache=True, nogil=True)
