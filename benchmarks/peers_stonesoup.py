@@ -39,7 +39,10 @@ source001_rugged       4.1    3.6
 =====================  =====  =====
 
 Before the compiled fused likelihood and grid loops the same comparison (2 trials) gave
-1.9 / 1.6, 2.2 / 1.7 and 3.4 / 2.5.
+1.9 / 1.6, 2.2 / 1.7 and 3.4 / 2.5. The ratio depends on the machine's load (Stone
+Soup's many small numpy calls suffer more on a busy machine): on a quiet one (yardstick
+1 ms) the final code gave 2.6 / 2.9 (azores-demo, 5 trials), 3.4 / 3.3 (source004_main,
+5 trials) and 1.9 / 3.1 (source001_rugged, 2 trials).
 """
 
 from __future__ import annotations
