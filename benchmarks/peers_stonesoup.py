@@ -16,9 +16,33 @@ sides share the map reading and differ only in the filter machinery:
 - ``ParticlePredictor`` / ``ParticleUpdater`` with ``ESSResampler`` (systematic, ESS < M/2),
   the same number of particles as our ``pf``, no regulariser.
 
+Identical likelihood: our ``pmf`` and ``pf`` run here with ``discretisation_noise=False``
+(Stone Soup has no such term), so both sides weigh every hypothesis by the same Gaussian
+of the same beams with the same variance; our grid and particle count are fixed
+(``max_points = points``, ``max_particles = particles``) as Stone Soup's are. The time
+ratio (Stone Soup's time per trial over ours, same trials, same run) is printed per filter.
+
 Usage::
 
     python benchmarks/peers_stonesoup.py --scenario azores-demo --trials 10 --points 61
+
+Measured (Stone Soup 1.9.1, one core each, a shared and busy 2-core machine: only the
+same-run ratios mean anything), Stone Soup's time per trial over ours -- from the filters
+results section (``benchmarks/results.py --only filters``: 10, 10 and 8 trials):
+
+=====================  =====  =====
+scenario               pmf    pf
+=====================  =====  =====
+azores-demo            3.3    3.4
+source004_main         3.4    3.7
+source001_rugged       4.1    3.6
+=====================  =====  =====
+
+Before the compiled fused likelihood and grid loops the same comparison (2 trials) gave
+1.9 / 1.6, 2.2 / 1.7 and 3.4 / 2.5. The ratio depends on the machine's load (Stone
+Soup's many small numpy calls suffer more on a busy machine): on a quiet one (yardstick
+1 ms) the final code gave 2.6 / 2.9 (azores-demo, 5 trials), 3.4 / 3.3 (source004_main,
+5 trials) and 1.9 / 3.1 (source001_rugged, 2 trials).
 """
 
 from __future__ import annotations
@@ -199,8 +223,9 @@ def compare(scen, trials: int, points: int = 61, particles: int = 5000) -> dict:
 
     grid = prepare_map(scen)
     # Same grid size and particle count as the peers: no adaptive growth.
-    ours_pmf = Pmf(points=points, max_points=points)
-    ours_pf = Pf(particles=particles, max_particles=particles)
+    # Identical likelihood: no discretisation noise (Stone Soup has none).
+    ours_pmf = Pmf(points=points, max_points=points, discretisation_noise=False)
+    ours_pf = Pf(particles=particles, max_particles=particles, discretisation_noise=False)
     runs = {
         "geofix pmf": lambda p, r: ours_pmf.match(p, r).track,
         "stonesoup pmf": lambda p, r: stonesoup_pmf(p, points, ours_pmf.extent_sigmas),
@@ -251,13 +276,24 @@ def main() -> None:
         scen = load_scenario(resources.files("geofix") / "scenarios" / "azores_demo.yaml")
     else:
         scen = scenario(args.scenario)
-    for label, rec in compare(scen, args.trials, args.points, args.particles).items():
+    result = compare(scen, args.trials, args.points, args.particles)
+    for label, rec in result.items():
         e = rec["end_errors"]
         rms = float(np.sqrt(np.nanmean(e**2))) if np.isfinite(e).any() else float("nan")
         print(
             f"{label:14s} RMS end error {rms:9.2f} m   time/trial {rec['times'].mean():7.3f} s"
             f"   failures {rec['failures']} {rec['message'][:80]}"
         )
+    for name, ratio in time_ratios(result).items():
+        print(f"{name}: Stone Soup time / ours {ratio:6.2f}")
+
+
+def time_ratios(result: dict) -> dict:
+    """``{"pmf": r, "pf": r}``: Stone Soup's mean time per trial over ours (same run)."""
+    return {
+        f: float(result[f"stonesoup {f}"]["times"].mean() / result[f"geofix {f}"]["times"].mean())
+        for f in ("pmf", "pf")
+    }
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ LAYERS = (
     ("memory",),
     ("maps",),
     ("nav", "sensors"),
-    ("problem",),
+    ("problem", "_likelihood_kernels"),
     ("measurement",),
     ("sim",),
     ("match", "filters", "logs"),

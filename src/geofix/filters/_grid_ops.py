@@ -12,7 +12,9 @@ however peaked never underflows to an all-zero grid, and never produces NaN.
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import correlate1d, map_coordinates
+from scipy.ndimage import map_coordinates
+
+from geofix.filters import _grid_kernels as grid_kernels
 
 THREE_TAP_MAX_SIGMA = 0.8
 """Largest kernel sigma (in nodes) for the three-tap kernel; wider ones are sampled Gaussians
@@ -24,7 +26,7 @@ def node_offsets(shape, spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     ``shape`` is ``N`` or ``(N0, N1)``; the result is ``(N0,)`` and ``(N1,)``.
     """
-    n0, n1 = np.broadcast_to(np.asarray(shape, dtype=int), 2)
+    n0, n1 = (int(shape), int(shape)) if np.ndim(shape) == 0 else (int(n) for n in shape)
     u = (np.arange(n0) - 0.5 * (n0 - 1)) * spacing[0]
     v = (np.arange(n1) - 0.5 * (n1 - 1)) * spacing[1]
     return u, v
@@ -38,8 +40,7 @@ def node_positions(centre, axes, spacing, shape) -> np.ndarray:
 
 def normalise(log_weight: np.ndarray) -> np.ndarray:
     """Log-weights shifted so that they sum (in linear space) to one."""
-    top = log_weight.max()
-    return log_weight - (top + np.log(np.exp(log_weight - top).sum()))
+    return grid_kernels.normalised(np.ascontiguousarray(log_weight, dtype=float))
 
 
 def gaussian_log_density(positions, mean, cov) -> np.ndarray:
@@ -50,23 +51,20 @@ def gaussian_log_density(positions, mean, cov) -> np.ndarray:
     return -0.5 * quad - 0.5 * np.log(np.linalg.det(2.0 * np.pi * cov))
 
 
-def moments(log_weight, centre, axes, spacing) -> tuple[np.ndarray, np.ndarray]:
+def moments(log_weight, centre, axes, spacing, offsets=None) -> tuple[np.ndarray, np.ndarray]:
     """Mean ``(2,)`` (metres) and covariance ``(2, 2)`` (m^2) of a normalised grid.
 
     The covariance includes the grid's own resolution, ``spacing^2 / 12`` per axis (the
     variance of a position spread uniformly over one node's cell), so that a posterior
     collapsed on one node still reports the uncertainty its grid can resolve.
+    ``offsets`` is the grid's ``node_offsets`` when the caller has it already.
     """
-    w = np.exp(log_weight - log_weight.max())
-    w /= w.sum()
-    u, v = node_offsets(w.shape, spacing)
-    wu, wv = w.sum(axis=1), w.sum(axis=0)
-    mu = np.array([wu @ u, wv @ v])
-    du, dv = u - mu[0], v - mu[1]
-    cuv = du @ w @ dv
-    local = np.array([[wu @ du**2, cuv], [cuv, wv @ dv**2]])
-    local += np.diag(np.asarray(spacing, float) ** 2 / 12.0)
-    return centre + axes @ mu, axes @ local @ axes.T
+    log_weight = np.asarray(log_weight, dtype=float)
+    u, v = node_offsets(log_weight.shape, spacing) if offsets is None else offsets
+    mu_u, mu_v, c_uu, c_uv, c_vv = grid_kernels.grid_moments(log_weight, u, v)
+    resolution = np.asarray(spacing, float) ** 2 / 12.0
+    local = np.array([[c_uu + resolution[0], c_uv], [c_uv, c_vv + resolution[1]]])
+    return centre + axes @ np.array([mu_u, mu_v]), axes @ local @ axes.T
 
 
 def mass_beyond(log_weight, centre, axes, spacing, point, radius: float) -> float:
@@ -115,16 +113,12 @@ def convolve_log(log_weight: np.ndarray, kernels: tuple[np.ndarray, np.ndarray])
     The convolution runs in linear space on ``exp(log_weight - max)`` (two 1-D passes,
     exact sums of non-negative terms, mass leaving the grid is lost). Where that underflows
     to zero the result is bounded below by the node's own contribution,
-    ``log_weight + log(centre tap 0) + log(centre tap 1)``, which is finite.
+    ``log_weight + log(centre tap 0) + log(centre tap 1)``, which is finite. One compiled
+    call (:func:`geofix.filters._grid_kernels.convolve_log`).
     """
-    top = log_weight.max()
-    p = np.exp(log_weight - top)
-    p = correlate1d(p, kernels[0], axis=0, mode="constant")
-    p = correlate1d(p, kernels[1], axis=1, mode="constant")
-    floor = log_weight - top + sum(np.log(k[k.size // 2]) for k in kernels)
-    with np.errstate(divide="ignore"):
-        logp = np.where(p > 0.0, np.log(np.maximum(p, np.finfo(float).tiny)), -np.inf)
-    return normalise(np.maximum(logp, floor) + top)
+    k0, k1 = (np.ascontiguousarray(k, dtype=float) for k in kernels)
+    lw = np.ascontiguousarray(log_weight, dtype=float)
+    return grid_kernels.convolve_log(lw, k0, k1, float(np.finfo(float).tiny))
 
 
 GridFrame = tuple[np.ndarray, np.ndarray, np.ndarray]

@@ -24,8 +24,7 @@ Systems 45(4):
   noise of the exact discretisation handled in one step;
 - **update**: the terrain / gravity likelihood of every particle's footprints, the same
   code as the point-mass and particle filters
-  (:func:`~geofix.measurement.predict_measurements`,
-  :func:`~geofix.measurement.log_likelihood`, the likelihood flattening of
+  (:func:`~geofix.measurement.hypotheses_log_likelihood`, the likelihood flattening of
   :func:`~geofix.filters.pf.spread_field_variance` while the set is sparse); with an
   aiding DVL, the velocity measurement ``v_INS - v_DVL = C x_l + noise`` updates every
   Kalman filter (shared gain) and weighs each particle by its marginal likelihood
@@ -66,11 +65,11 @@ estimate is the weighted mean and covariance of the particle positions.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
-from scipy.special import logsumexp
 from threadpoolctl import threadpool_limits
 
 from geofix.errors import ConfigError, MatchError
@@ -79,11 +78,12 @@ from geofix.filters.pf import (
     PfState,
     effective_sample_size,
     linear_weights,
+    log_normalised,
     spread_field_variance,
     systematic_resample,
 )
 from geofix.maps.grid import Grid
-from geofix.measurement import log_likelihood, predict_measurements
+from geofix.measurement import hypotheses_log_likelihood, predict_measurements
 from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
 from geofix.problem import MatchProblem
 
@@ -139,10 +139,12 @@ class MpfState:
         """``(M, 2)`` absolute particle positions, metres."""
         return self.indicated - self.dp
 
-    @property
+    @functools.cached_property
     def weights(self) -> np.ndarray:
-        """``(M,)`` linear weights summing to one."""
-        return linear_weights(self.log_weight)
+        """``(M,)`` linear weights summing to one (read-only, computed once per state)."""
+        w = linear_weights(self.log_weight)
+        w.setflags(write=False)
+        return w
 
 
 @dataclass(frozen=True)
@@ -237,7 +239,7 @@ class Mpf(RecursiveFilter):
             dp=dp,
             linear=_times(dp, gain),
             cov=_sym(p0[_L, _L] - gain @ p0[_P, _L]),
-            log_weight=log_weight - logsumexp(log_weight),
+            log_weight=log_normalised(log_weight),
             indicated=start,
             step=0,
             model=es,
@@ -278,16 +280,16 @@ class Mpf(RecursiveFilter):
             state, log_weight = self._dvl_update(state, state.dvl[obs.index], log_weight)
         if np.isfinite(obs.values).any():
             positions = state.positions
-            predicted = predict_measurements(grid, positions, obs.heading, obs.offsets)
             var = obs.noise_var
             if self.discretisation_noise and state.spacing > 0:
                 view = PfState(positions, state.log_weight, state.cell, spacing=state.spacing)
                 var = var + spread_field_variance(grid, view, obs, rng)
-            log_weight = log_weight + log_likelihood(predicted, obs.values, var, obs.bias_var)
+            ll = hypotheses_log_likelihood(
+                grid, positions, obs.heading, obs.offsets, obs.values, var, obs.bias_var
+            )
+            log_weight = log_weight + ll
             evaluations += positions.shape[0]
-        return replace(
-            state, log_weight=log_weight - logsumexp(log_weight), evaluations=evaluations
-        )
+        return replace(state, log_weight=log_normalised(log_weight), evaluations=evaluations)
 
     def estimate(self, state: MpfState) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean ``(2,)`` and covariance ``(2, 2)`` of the positions, m and m^2."""

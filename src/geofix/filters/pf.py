@@ -9,11 +9,10 @@ r"""The bootstrap particle filter (PF): the same recursion as the PMF with weigh
   the particles along it, ``M`` their number, 2 the dimension); then every particle moves
   by the INS displacement plus a normal draw of per-axis variance ``Motion.process_var``
   (the bootstrap proposal: the motion prior);
-- **update**: the same measurement model as the PMF
-  (:func:`~geofix.measurement.predict_measurements` at every particle, every beam,
-  :func:`~geofix.measurement.log_likelihood` with off-map handling) is added to
-  the log-weights. Weights stay in log space; the estimate is the weighted mean and
-  covariance.
+- **update**: the same measurement model as the PMF (the map read at every particle,
+  every beam, and the Gaussian log-likelihood with off-map handling, in one compiled pass:
+  :func:`~geofix.measurement.hypotheses_log_likelihood`) is added to the log-weights.
+  Weights stay in log space; the estimate is the weighted mean and covariance.
 
 Resampling happens at the start of the prediction, so that the estimate after an update
 comes from the weighted set (less Monte-Carlo noise than from a freshly resampled one).
@@ -43,6 +42,7 @@ handed to the filter.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
@@ -50,9 +50,10 @@ import numpy as np
 from scipy.special import logsumexp
 
 from geofix.errors import ConfigError, MatchError
+from geofix.filters import _particle_kernels as kernels
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
-from geofix.measurement import log_likelihood, predict_measurements
+from geofix.measurement import hypotheses_log_likelihood, predict_measurements
 from geofix.problem import MatchProblem
 
 
@@ -83,10 +84,20 @@ class PfState:
     evaluations: int = 0
     resamples: int = 0
 
-    @property
+    @functools.cached_property
     def weights(self) -> np.ndarray:
-        """``(M,)`` linear weights summing to one."""
-        return linear_weights(self.log_weight)
+        """``(M,)`` linear weights summing to one (read-only, computed once per state)."""
+        w = linear_weights(self.log_weight)
+        w.setflags(write=False)
+        return w
+
+    @functools.cached_property
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean ``(2,)`` and covariance ``(2, 2)``, m and m^2 (once per state)."""
+        w = self.weights
+        mean = w @ self.particles
+        d = self.particles - mean
+        return mean, (d * w[:, None]).T @ d
 
 
 @dataclass(frozen=True)
@@ -180,7 +191,7 @@ class Pf(RecursiveFilter):
         ).any():
             raise MatchError("pf: the prior particles lie entirely off the map")
         log_weight = -0.5 * np.sum((particles - start) ** 2, axis=1) / sigma**2
-        return PfState(particles, log_weight - logsumexp(log_weight), cell, spacing=h)
+        return PfState(particles, log_normalised(log_weight), cell, spacing=h)
 
     def particle_count(self, area: float, cell: float) -> int:
         """Particles for a posterior box of ``area`` m^2 on a map of ``cell`` metres.
@@ -195,31 +206,37 @@ class Pf(RecursiveFilter):
         count = state.particles.shape[0]
         if effective_sample_size(state.weights) < self.resample_threshold * count:
             state = self._resample(state, rng)
-        noise = np.sqrt(motion.process_var) * rng.standard_normal(state.particles.shape)
-        particles = state.particles + np.asarray(motion.displacement, dtype=float) + noise
+        draws = rng.standard_normal(state.particles.shape)
+        displacement = np.asarray(motion.displacement, dtype=float)
+        particles = kernels.moved(
+            np.ascontiguousarray(state.particles, dtype=float),
+            displacement,
+            float(np.sqrt(motion.process_var)),
+            draws,
+        )  # state.particles + displacement + sqrt(process_var) * draws, one pass
         return replace(state, particles=particles)
 
     def update(self, state: PfState, obs: Observation, grid: Grid, rng) -> PfState:
         """Add every particle's measurement log-likelihood (all beams at once)."""
         if not np.isfinite(obs.values).any():
             return state
-        predicted = predict_measurements(grid, state.particles, obs.heading, obs.offsets)
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         if self.discretisation_noise and state.spacing > 0:
             var = var + spread_field_variance(grid, state, obs, rng)
-        log_weight = state.log_weight + log_likelihood(predicted, obs.values, var, obs.bias_var)
+        ll = hypotheses_log_likelihood(
+            grid, state.particles, obs.heading, obs.offsets, obs.values, var, obs.bias_var
+        )
+        log_weight = state.log_weight + ll
         return replace(
             state,
-            log_weight=log_weight - logsumexp(log_weight),
+            log_weight=log_normalised(log_weight),
             evaluations=state.evaluations + state.particles.shape[0],
         )
 
     def estimate(self, state: PfState) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2."""
-        w = state.weights
-        mean = w @ state.particles
-        d = state.particles - mean
-        return mean, (d * w[:, None]).T @ d
+        mean, cov = state.moments
+        return mean.copy(), cov.copy()
 
     def is_ambiguous(self, state: PfState) -> bool:
         """More than ``ambiguity_mass`` of the weight beyond the radius around the mean."""
@@ -256,6 +273,27 @@ def linear_weights(log_weight: np.ndarray) -> np.ndarray:
     return w / w.sum()
 
 
+def log_normalised(log_weight: np.ndarray) -> np.ndarray:
+    """``log_weight - scipy.special.logsumexp(log_weight)`` for ``(M,)`` log-weights.
+
+    The same numbers, bit for bit, as scipy's ``logsumexp`` (its maximum terms kept out
+    of the sum: ``log1p(s) + log(m) + max``, ``m`` the count of maximal entries, ``s`` the
+    sum of the others' ``exp(a - max)`` over ``m``) without its generic-array overhead,
+    which dominates a few-thousand-particle step; a non-finite maximum goes to scipy.
+    """
+    top = log_weight.max()
+    if not np.isfinite(top):
+        return log_weight - logsumexp(log_weight)
+    at_top = log_weight == top
+    count = float(np.count_nonzero(at_top))
+    shifted = log_weight - top
+    shifted[at_top] = -np.inf
+    total = np.exp(shifted).sum()
+    if total != 0:
+        total = total / count
+    return log_weight - (np.log1p(total) + np.log(count) + top)
+
+
 def effective_sample_size(weights: np.ndarray) -> float:
     """``1 / sum(w^2)`` of normalised weights ``(M,)``: between 1 and ``M``."""
     return float(1.0 / np.sum(np.asarray(weights, dtype=float) ** 2))
@@ -269,10 +307,11 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count=Non
     weights, so it appears ``floor(count w_i)`` or ``ceil(count w_i)`` times.
     """
     m = weights.shape[0] if count is None else int(count)
-    pointers = (rng.random() + np.arange(m)) / m
+    u = rng.random()
     cumulative = np.cumsum(weights)
     cumulative[-1] = 1.0
-    return np.searchsorted(cumulative, pointers, side="right")
+    # searchsorted(cumulative, (u + arange(m)) / m, side="right") in one merge pass
+    return kernels.systematic_indices(cumulative, float(u), m)
 
 
 FIELD_VARIANCE_SUBSET = 2000

@@ -7,20 +7,22 @@ position hypotheses (Bergman 1999; Anonsen & Hallingstad for HUGIN). Each sample
   and the weights are convolved with the INS-error motion kernel, an isotropic Gaussian
   of per-axis variance ``Motion.process_var`` (separable, so two 1-D passes along the grid
   axes whatever their orientation);
-- **update**: the field every beam would read from every node is taken from the map at
-  once (:func:`~geofix.measurement.predict_measurements`) and the Gaussian
-  log-likelihood (:func:`~geofix.measurement.log_likelihood`, off-map footprints
-  penalised) is added to the log-weights. The variance is the sensor's plus the map's
+- **update**: the field every beam would read from every node is taken from the map and
+  the Gaussian log-likelihood (off-map footprints penalised) is added to the log-weights,
+  in one compiled pass over nodes and beams
+  (:func:`~geofix.measurement.node_grid_log_likelihood`, the same numbers as
+  :func:`~geofix.measurement.predict_measurements` followed by
+  :func:`~geofix.measurement.log_likelihood`). The variance is the sensor's plus the map's
   (``Observation.noise_var``) plus, by default, the spread of the field within one grid
   node (``discretisation_noise``; see :class:`Pmf`).
 
 Everything stays in log space (:mod:`geofix.filters._grid_ops`), so a likelihood however
-peaked gives no underflow and no NaN. The convolution is two direct 1-D passes
-(``scipy.ndimage.correlate1d``) rather than an FFT: profiled on the 61 x 61 grid with
-kernels of 3 to 73 taps it takes 0.4-0.9 ms a step against 0.5-1.5 ms for
-``scipy.signal.fftconvolve``, and as a sum of non-negative terms it is exact in the tails,
-where FFT round-off (1e-16 of the peak) would plant mass that later likelihoods, added in
-log space, could amplify.
+peaked gives no underflow and no NaN. The convolution is two direct 1-D passes (compiled
+with the rest of the step's grid loops, :mod:`geofix.filters._grid_kernels`) rather than
+an FFT: on the 61 x 61 grid with kernels of 3 to 73 taps direct passes were faster than
+``scipy.signal.fftconvolve``, and as a sum of non-negative terms they are exact in the
+tails, where FFT round-off (1e-16 of the peak) would plant mass that later likelihoods,
+added in log space, could amplify.
 
 **The grid follows the posterior.** Before each prediction the posterior mean ``m`` and
 covariance ``P`` are computed; the ideal grid is centred on ``m``, its axes along the
@@ -57,6 +59,8 @@ posterior lies farther than ``ambiguity_radius_cells`` map cells from the poster
 
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
@@ -64,11 +68,12 @@ import numpy as np
 
 from geofix._measurement_kernels import node_field_variance_kernel
 from geofix.errors import ConfigError, MatchError
+from geofix.filters import _grid_kernels as grid_kernels
 from geofix.filters import _grid_ops as ops
 from geofix.filters._pmf_errstate import conditional_motion, dvl_update, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
-from geofix.measurement import log_likelihood, predict_measurements
+from geofix.measurement import log_likelihood, node_grid_log_likelihood, predict_measurements
 from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
 from geofix.problem import MatchProblem
 
@@ -128,6 +133,19 @@ class PmfState:
     def shape(self) -> tuple[int, int]:
         """Nodes along each grid axis ``(N0, N1)``."""
         return self.log_weight.shape
+
+    @functools.cached_property
+    def node_offsets(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(u (N0,), v (N1,))`` node coordinates along the grid axes, metres (cached)."""
+        return ops.node_offsets(self.shape, self.spacing)
+
+    @functools.cached_property
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Posterior mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2.
+
+        Cached: the state is immutable, and every step asks for them more than once.
+        """
+        return ops.moments(self.log_weight, *self.frame, offsets=self.node_offsets)
 
 
 @dataclass(frozen=True)
@@ -283,6 +301,29 @@ class Pmf(RecursiveFilter):
             state = self._dvl_update(state, state.dvl[obs.index])
         if not np.isfinite(obs.values).any():
             return state
+        if obs.bias_var > 0 or grid.interpolation != "bilinear":
+            return self._update_reference(state, obs, grid)
+        # One compiled pass over nodes x beams (the reference path -- node_positions,
+        # predict_measurements, node_field_variance, log_likelihood -- to ~1e-15 relative).
+        u, v = state.node_offsets
+        ll, _ = node_grid_log_likelihood(
+            grid,
+            (state.centre, state.axes, u, v),
+            obs.heading,
+            obs.offsets,
+            obs.values,
+            obs.noise_var,
+            self.discretisation_noise,
+        )
+        log_weight = ops.normalise(state.log_weight + ll)
+        return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
+
+    def _update_reference(self, state: PmfState, obs: Observation, grid: Grid) -> PmfState:
+        """The update through the prediction array.
+
+        For the common-offset likelihood and for map reads other than bilinear, which the
+        fused pass does not cover.
+        """
         xy = ops.node_positions(*state.frame, state.shape)
         predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
@@ -295,7 +336,8 @@ class Pmf(RecursiveFilter):
 
     def estimate(self, state: PmfState) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2."""
-        return ops.moments(state.log_weight, *state.frame)
+        mean, cov = state.moments
+        return mean.copy(), cov.copy()
 
     def is_ambiguous(self, state: PmfState) -> bool:
         """More than ``ambiguity_mass`` of the posterior beyond the radius around the mean."""
@@ -427,9 +469,18 @@ class Pmf(RecursiveFilter):
         ``(2,)`` metres: every node within ``support_nats`` of the peak log-weight, plus
         one node spacing.
         """
-        keep = state.log_weight >= state.log_weight.max() - self.support_nats
-        xy = ops.node_positions(*state.frame, state.shape)[keep]
-        reach = np.abs((xy - centre) @ axes).max(axis=0)
+        threshold = float(state.log_weight.max() - self.support_nats)
+        u, v = state.node_offsets
+        reach = grid_kernels.support_reach(
+            state.log_weight,
+            threshold,
+            state.centre,
+            state.axes,
+            u,
+            v,
+            np.asarray(centre, dtype=float),
+            np.ascontiguousarray(axes, dtype=float),
+        )
         return reach + state.spacing.max()
 
     def grid_layout(self, half_extent: np.ndarray, cell: float) -> tuple:
@@ -456,15 +507,24 @@ class Pmf(RecursiveFilter):
         """True when ``state``'s grid is too far from ``frame`` in spacing, size or position."""
         centre, axes, spacing = frame
         basis = state.axes * state.spacing
-        stretch = np.linalg.svd(np.linalg.solve(basis, axes * spacing), compute_uv=False)
-        if np.max(np.abs(np.log(stretch))) > np.log(self.regrid_ratio):
+        # one solve for the new node steps and the shift, in units of the current steps
+        solved = np.linalg.solve(basis, np.column_stack([axes * spacing, centre - state.centre]))
+        limit = math.log(self.regrid_ratio)
+        if max(abs(math.log(s)) if s > 0 else math.inf for s in _singular_values(solved)) > limit:
             return True
         size = np.log(np.sort(np.array(shape) - 1) / np.sort(np.array(state.shape) - 1))
-        if np.max(np.abs(size)) > np.log(self.regrid_ratio):
+        if np.max(np.abs(size)) > limit:
             return True
-        shift = np.linalg.solve(basis, centre - state.centre)
         half = 0.5 * (np.array(state.shape) - 1)
-        return bool(np.max(np.abs(shift) / half) > self.regrid_shift)
+        return bool(np.max(np.abs(solved[:, 2]) / half) > self.regrid_shift)
+
+
+def _singular_values(m: np.ndarray) -> tuple[float, float]:
+    """Singular values of the ``2 x 2`` matrix ``m[:, :2]`` (closed form, ``>= 0``)."""
+    (a, b), (c, d) = m[0, :2].tolist(), m[1, :2].tolist()
+    p, q, r = a * a + c * c, a * b + c * d, b * b + d * d  # m^T m
+    mid, dev = 0.5 * (p + r), math.hypot(0.5 * (p - r), q)
+    return math.sqrt(mid + dev), math.sqrt(max(mid - dev, 0.0))
 
 
 def node_field_variance(predicted: np.ndarray, measured: np.ndarray) -> float:
