@@ -275,8 +275,11 @@ def build(quick: bool = False) -> str:
         _mapread(f),
         _ga(f),
         _campaign(f),
-        "Not measured here: the point-mass and particle filters against Stone Soup's "
-        "(`benchmarks/peers_stonesoup.py`, the `bench` extra), which now read the map "
-        "through the same compiled prediction.\n",
+        "The point-mass and particle filters against Stone Soup's, at equal grid / "
+        "particle count and identical likelihood (our discretisation noise off), are "
+        "timed in the same campaigns as their errors: see the filters section "
+        "(`benchmarks/peers_stonesoup.py`, the `bench` extra). The navigator's update "
+        "and the server's round trip are in the navigator section "
+        "(`benchmarks/bench_navigator.py`).\n",
     ]
     return "\n".join(p for p in parts if p)
