@@ -127,11 +127,25 @@ def test_sigkill_at_random_points_then_rerun_gives_the_same_table(tmp_path, smal
         record(outcome)
 
 
+def _terminal_sigint() -> None:
+    """Give the child the default Ctrl-C disposition, as a terminal's foreground job has.
+
+    A job started in the background by a non-interactive shell inherits ``SIGINT``
+    ignored, and Python then installs no KeyboardInterrupt handler.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_prints_one_line_without_worker_tracebacks(tmp_path):
     # enough trials that forked workers (which start at once) are still busy after 1 s
     cmd = _command(_scenario(tmp_path), tmp_path / "out", trials=CTRL_C_TRIALS)
     proc = subprocess.Popen(
-        cmd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
+        cmd,
+        env=_env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+        preexec_fn=_terminal_sigint,
     )
     start = time.perf_counter()
     while len(_descendants(proc.pid)) < 2 and time.perf_counter() - start < 20:
