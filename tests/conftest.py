@@ -62,6 +62,43 @@ def small_mission_data(name: str, **changes) -> dict:
     return data
 
 
+def gravity_dvl_mission_data(name: str, **changes) -> dict:
+    """Source 003's mission, shortened: Gulf of Alaska gravity at 100 m, 50 samples 20 s
+    apart, a drifting free INS aided by a DVL; as a scenario mapping.
+
+    ``changes`` replace top-level keys; ``sensor`` updates only the keys it names.
+    """
+    data = {
+        "name": name,
+        "map": {
+            "path": "builtin:alaska_gravity",
+            "kind": "gravity",
+            "region": [-138, -136, 53, 55],
+            "resample_m": 100,
+        },
+        "track": {
+            "start_cell": [250, 1120],
+            "heading_deg": 70,
+            "speed_m_s": 10,
+            "interval_s": 20,
+            "samples": 50,
+        },
+        "sensor": {"type": "gravimeter", "noise_std": 1.0},
+        "ins": {
+            "initial_error_m": [300, 300],
+            "velocity_error_m_s": 0.04,
+            "heading_error_deg": 0.05,
+            "accel_bias_ug": 101.97,
+        },
+        "dvl": {"noise_std_m_s": 0.02, "bias_m_s": 0.02},
+        "trials": 4,
+        "seed": 3,
+    }
+    data["sensor"].update(changes.pop("sensor", {}))
+    data.update(changes)
+    return data
+
+
 @pytest.fixture
 def small_mission():
     """Factory of :func:`small_mission_data` scenarios (validated)."""

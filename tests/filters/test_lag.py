@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from conftest import gravity_dvl_mission_data
 from geofix.errors import ConfigError
 from geofix.evaluate.runner import method_rng, run_trial
 from geofix.filters.base import observations
@@ -16,36 +17,10 @@ from geofix.sim.simulate import prepare_map, simulate_trial
 LAG_S = 60.0
 
 
-def _gravity_mission(lag_s: float, samples: int = 50):
+def _gravity_mission(lag_s: float):
     """Source 003's lagged mission (Gulf of Alaska gravity, 20 s samples), shortened."""
-    return scenario_from_dict(
-        {
-            "name": f"lag-{lag_s:g}",
-            "map": {
-                "path": "builtin:alaska_gravity",
-                "kind": "gravity",
-                "region": [-138, -136, 53, 55],
-                "resample_m": 100,
-            },
-            "track": {
-                "start_cell": [250, 1120],
-                "heading_deg": 70,
-                "speed_m_s": 10,
-                "interval_s": 20,
-                "samples": samples,
-            },
-            "sensor": {"type": "gravimeter", "noise_std": 1.0, "lag_s": lag_s},
-            "ins": {
-                "initial_error_m": [300, 300],
-                "velocity_error_m_s": 0.04,
-                "heading_error_deg": 0.05,
-                "accel_bias_ug": 101.97,
-            },
-            "dvl": {"noise_std_m_s": 0.02, "bias_m_s": 0.02},
-            "trials": 4,
-            "seed": 3,
-        }
-    )
+    data = gravity_dvl_mission_data(f"lag-{lag_s:g}", sensor={"lag_s": lag_s})
+    return scenario_from_dict(data)
 
 
 @pytest.fixture(scope="module")

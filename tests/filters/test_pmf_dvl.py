@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from conftest import gravity_dvl_mission_data
 from geofix.evaluate.runner import method_rng, run_trial
 from geofix.filters._pmf_errstate import dvl_update
 from geofix.methods import parse_method_spec
@@ -36,34 +37,7 @@ def test_dvl_node_likelihood_and_kalman_update_agree():
 
 def _gravity_dvl_mission():
     """Source 003's mission (Gulf of Alaska gravity, a free INS aided by a DVL), shortened."""
-    return scenario_from_dict(
-        {
-            "name": "pmf-dvl",
-            "map": {
-                "path": "builtin:alaska_gravity",
-                "kind": "gravity",
-                "region": [-138, -136, 53, 55],
-                "resample_m": 100,
-            },
-            "track": {
-                "start_cell": [250, 1120],
-                "heading_deg": 70,
-                "speed_m_s": 10,
-                "interval_s": 20,
-                "samples": 50,
-            },
-            "sensor": {"type": "gravimeter", "noise_std": 1.0},
-            "ins": {
-                "initial_error_m": [300, 300],
-                "velocity_error_m_s": 0.04,
-                "heading_error_deg": 0.05,
-                "accel_bias_ug": 101.97,
-            },
-            "dvl": {"noise_std_m_s": 0.02, "bias_m_s": 0.02},
-            "trials": 5,
-            "seed": 3,
-        }
-    )
+    return scenario_from_dict(gravity_dvl_mission_data("pmf-dvl", trials=5))
 
 
 def test_errstate_pmf_with_the_dvl_ends_closer_and_as_mpf():

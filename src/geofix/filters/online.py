@@ -55,6 +55,7 @@ from geofix.measurement import (
 )
 from geofix.problem import MatchProblem
 from geofix.sensors.attitude import level_offsets
+from geofix.sensors.gravimeter import undo_lag_step
 
 STATUSES = ("initialising", "converging", "converged", "lost")
 
@@ -465,8 +466,7 @@ class OnlineFilter:
         self._lagged = (t, values.copy())
         if previous is None or previous[1].shape != values.shape or t <= previous[0]:
             return values
-        a = np.exp(-(t - previous[0]) / lag)
-        return (values - a * previous[1]) / (1.0 - a)
+        return undo_lag_step(values, previous[1], np.exp(-(t - previous[0]) / lag))
 
     def _reset_bias(self, t: float) -> None:
         """The common-offset state back at its prior ``N(0, depth_bias_std^2)``."""

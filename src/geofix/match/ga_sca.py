@@ -265,7 +265,7 @@ class GaSca:
 
     def _match_compiled(self, ctx, pop, cost, mad, rng) -> Fix:
         """The generation loop in one compiled call (:func:`ga_search`), same draws."""
-        half = 0.5 * (ctx.upper - ctx.lower) * np.array([0.1, 0.1, 0.2, 0.2])
+        half = _sca_half_widths(ctx)
         ga_settings = (
             int(self.max_generations),
             int(self.stall_generations),
@@ -354,7 +354,7 @@ class GaSca:
 
     def _sca(self, ctx, elite, rng):
         """Sine-cosine refinement around the elite; returns new elite and SCA population."""
-        half = 0.5 * (ctx.upper - ctx.lower) * np.array([0.1, 0.1, 0.2, 0.2])
+        half = _sca_half_widths(ctx)
         if self.engine == "numpy":
             return self._sca_numpy(ctx, elite, rng, half)
         ctx.counter[0] += self.sca_population * (self.sca_iterations + 1)
@@ -539,6 +539,11 @@ class GaSca:
         scale = max(ctx.problem.noise_std * np.sqrt(2 / np.pi), best_mad, 1e-9)
         gap = ctx.valid.sum() * (float(np.nanmin(mad[far])) - best_mad) / scale
         return bool(gap < np.log(1.0 / self.ambiguity_mass))
+
+
+def _sca_half_widths(ctx: _Context) -> np.ndarray:
+    """``(4,)`` half-widths of the SCA box around the elite (0.1 / 0.2 of the search box)."""
+    return 0.5 * (ctx.upper - ctx.lower) * np.array([0.1, 0.1, 0.2, 0.2])
 
 
 def _tournament(cost: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:

@@ -72,5 +72,23 @@ def compensate_first_order_lag(values, times, lag_s: float) -> np.ndarray:
     a = _lag_coefficients(times, lag_s).reshape((-1,) + (1,) * (y.ndim - 1))
     x = np.empty_like(y)
     x[0] = y[0]
-    x[1:] = (y[1:] - a * y[:-1]) / (1.0 - a)
+    x[1:] = undo_lag_step(y[1:], y[:-1], a)
     return x
+
+
+def undo_lag_step(lagged, previous, a):
+    """One step of the exact inverse: ``x_k = (y_k - a y_{k-1}) / (1 - a)``.
+
+    Parameters
+    ----------
+    lagged, previous : array_like
+        ``y_k`` and ``y_{k-1}``, the lagged readings now and one sample before (map units).
+    a : float or array_like
+        ``exp(-(t_k - t_{k-1}) / lag_s)`` (dimensionless, broadcast against the readings).
+
+    Returns
+    -------
+    numpy.ndarray
+        The unlagged reading ``x_k``, map units.
+    """
+    return (lagged - a * previous) / (1.0 - a)
