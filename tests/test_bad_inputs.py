@@ -310,17 +310,6 @@ def test_sizes_that_would_not_fit_are_refused_before_allocation(tmp_path, change
     assert_clean_error(outcome, "would need", "memory budget", *names)
 
 
-def test_particle_field_variance_beyond_the_budget_is_refused(tmp_path):
-    # The particle likelihood itself reads the map in one pass (no particles x beams
-    # array); the field variance's predictions of 2000 particles x 100000 beams (~9 GiB)
-    # are the allocation that would not fit a 4 GB budget.
-    beams = {"sensor": {"type": "multibeam", "beams": 100_000, "swath_width_m": 500}}
-    scenario = _mission(tmp_path, **beams)
-    env = {"GEOFIX_MEMORY_BUDGET": "4GB"}
-    outcome = _run(tmp_path, scenario, method="pf", case="memory pf beams", env=env, trace=True)
-    assert_clean_error(outcome, "would need", "memory budget", "hypotheses", "100000 beams")
-
-
 def test_suitability_of_a_map_beyond_the_budget(tmp_path):
     grid = Grid(np.random.default_rng(1).normal(size=(600, 600)), 0.0, 0.0, 10.0, 10.0, name="big")
     path = save_grid(grid, tmp_path / "big.nc")

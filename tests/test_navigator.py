@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from geofix import InputError, Navigator
-from geofix.errors import ConfigError
+from geofix.errors import ConfigError, MemoryBudgetError
 from geofix.filters.base import observations
 from geofix.filters.online import NavigatorSettings
 from geofix.logs import read_exported
@@ -227,6 +227,21 @@ def test_a_bicubic_navigator_reads_the_map_bicubic_and_converges(synthetic_grid,
     assert ests[-1].status == "converged" and np.hypot(*(ests[-1].position - truth[-1])) < 5.0
     with pytest.raises(ConfigError, match="interpolation"):
         Navigator(synthetic_grid, "pmf", {"interpolation": "spline"})
+
+
+def test_an_all_beam_bicubic_update_beyond_the_budget_is_refused(synthetic_grid, monkeypatch):
+    # A bicubic read predicts (particles, beams) before its likelihood: 100 000 beams of a
+    # few thousand particles (~GBs) must be refused under a 1 GB budget, with the estimate.
+    monkeypatch.setenv("GEOFIX_MEMORY_BUDGET", "1GB")
+    settings = {"noise_std": 0.3, "interpolation": "bicubic", "max_update_beams": None}
+    nav = Navigator(synthetic_grid, "pf", {**settings, "max_beams": 10**6}, seed=1)
+    nav.init(0.0, (400.0, 300.0), 40.0, 0.0)
+    across = np.linspace(-100.0, 100.0, 100_000)
+    ping = np.column_stack([across, np.zeros_like(across), np.full_like(across, -100.0)])
+    with pytest.raises(
+        MemoryBudgetError, match=r"hypotheses x 100000 beams would need .* GiB; memory budget"
+    ):
+        nav.measure(1.0, ping)
 
 
 def test_min_beams_default_takes_single_beam_pings_and_gates_multibeam_ones(synthetic_grid, rng):

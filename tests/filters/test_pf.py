@@ -4,7 +4,16 @@ import numpy as np
 import pytest
 
 from geofix.errors import ConfigError, MatchError
-from geofix.filters.pf import Pf, PfState, effective_sample_size, systematic_resample
+from geofix.filters import pf as pf_module
+from geofix.filters.base import Observation
+from geofix.filters.pf import (
+    Pf,
+    PfState,
+    effective_sample_size,
+    field_variance_particles,
+    spread_field_variance,
+    systematic_resample,
+)
 from geofix.filters.pmf import Pmf
 from geofix.maps.synthetic import fractal_terrain
 from geofix.methods import parse_method_spec
@@ -139,3 +148,30 @@ def test_prior_is_a_stratified_sample_sized_by_its_area():
     np.testing.assert_allclose(cov, 100.0**2 * np.eye(2), rtol=0.02, atol=50.0)
     capped = Pf(particles=1000, max_particles=4000).initialize(problem, np.random.default_rng(0))
     assert capped.particles.shape[0] == 63**2  # the most squares within max_particles
+
+
+def test_field_variance_of_an_all_beam_ping_reads_fewer_particles_and_keeps_its_value(
+    monkeypatch,
+):
+    # Up to 64 beams: 2000 particles (every campaign scenario); 432 beams: 296, whose
+    # estimate (20 seeds) sits on the all-particle value within 3 standard errors, each
+    # within 5 % (its spread is ~1 %).
+    assert field_variance_particles(5000, 33) == 2000
+    assert field_variance_particles(5000, 432) == 296
+    assert field_variance_particles(5000, 100_000) == 64
+    assert field_variance_particles(30, 432) == 30
+    rng = np.random.default_rng(3)
+    grid = fractal_terrain((200, 200), 10.0, rng=rng, std=20.0, hurst=0.8)
+    across = np.linspace(-200.0, 200.0, 432)
+    offsets = np.column_stack([across, np.zeros_like(across)])
+    particles = np.array([1000.0, 1000.0]) + rng.normal(0.0, 60.0, (5000, 2))
+    state = PfState(particles, np.full(5000, -np.log(5000)), 10.0, spacing=8.0)
+    obs = Observation(np.zeros(432), np.zeros(2), 0.3, offsets, 1.0, 0)
+    capped = np.array(
+        [spread_field_variance(grid, state, obs, np.random.default_rng(s)) for s in range(20)]
+    )
+    monkeypatch.setattr(pf_module, "FIELD_VARIANCE_SUBSET", 5000)
+    monkeypatch.setattr(pf_module, "FIELD_VARIANCE_DIFFERENCES", 10**9)
+    every = spread_field_variance(grid, state, obs, np.random.default_rng(0))
+    assert abs(capped.mean() - every) < 3.0 * capped.std(ddof=1) / np.sqrt(capped.size)
+    assert np.all(np.abs(capped / every - 1.0) < 0.05)

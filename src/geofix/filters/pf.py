@@ -315,7 +315,26 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count=Non
 
 
 FIELD_VARIANCE_SUBSET = 2000
-"""Particles used to estimate the field's variance within one particle's share."""
+"""Most particles used to estimate the field's variance within one particle's share."""
+
+FIELD_VARIANCE_DIFFERENCES = FIELD_VARIANCE_SUBSET * 64
+"""Most particle-beam differences per axis in that estimate: with more than 64 measured
+beams, fewer particles (never below :data:`FIELD_VARIANCE_MIN_PARTICLES`)."""
+
+FIELD_VARIANCE_MIN_PARTICLES = 64
+"""Fewest particles used in that estimate (when the set has that many)."""
+
+
+def field_variance_particles(particles: int, beams: int) -> int:
+    """Particles drawn for the field variance of ``beams`` measured beams.
+
+    ``min(particles, FIELD_VARIANCE_SUBSET)`` up to 64 beams; beyond, as many as keep
+    ``particles x beams`` near :data:`FIELD_VARIANCE_DIFFERENCES` (an all-beam multibeam
+    ping averages over hundreds of beams per particle already), but at least
+    :data:`FIELD_VARIANCE_MIN_PARTICLES`.
+    """
+    by_reads = max(FIELD_VARIANCE_MIN_PARTICLES, FIELD_VARIANCE_DIFFERENCES // max(beams, 1))
+    return min(particles, FIELD_VARIANCE_SUBSET, by_reads)
 
 
 def spread_field_variance(grid: Grid, state: PfState, obs: Observation, rng) -> float:
@@ -323,15 +342,15 @@ def spread_field_variance(grid: Grid, state: PfState, obs: Observation, rng) -> 
 
     ``(mean(d_x^2) + mean(d_y^2)) / 12`` over the measured beams, ``d_x``, ``d_y`` the
     change of the field read by each beam when the vehicle moves by ``spacing`` along x
-    and along y, at up to :data:`FIELD_VARIANCE_SUBSET` particles drawn with ``rng`` (the
+    and along y, at :func:`field_variance_particles` particles drawn with ``rng`` (the
     PMF's node-field variance with particles for nodes); 0 when no difference is finite.
     """
-    m = state.particles.shape[0]
-    pick = rng.choice(m, min(m, FIELD_VARIANCE_SUBSET), replace=False)
-    base = state.particles[pick]
     use = np.isfinite(obs.values)
+    m = state.particles.shape[0]
+    pick = rng.choice(m, field_variance_particles(m, int(use.sum())), replace=False)
+    base = state.particles[pick]
     read = [
-        predict_measurements(grid, base + shift, obs.heading, obs.offsets)[:, use]
+        predict_measurements(grid, base + shift, obs.heading, np.asarray(obs.offsets)[use])
         for shift in ((0.0, 0.0), (state.spacing, 0.0), (0.0, state.spacing))
     ]
     total = 0.0
