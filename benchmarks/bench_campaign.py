@@ -132,8 +132,15 @@ def _tree_pss(proc: psutil.Process) -> int:
     return total
 
 
-def watch_campaign(scenario: Path, jobs: int, trials: int, out: Path, limit_s: float) -> dict:
-    """Run a campaign in a child process; peak PSS, time to first result, wall time."""
+def watch_campaign(
+    scenario: Path, jobs: int, trials: int, out: Path, limit_s: float, memory: bool = True
+) -> dict:
+    """Run a campaign in a child process; peak PSS, time to first result, wall time.
+
+    ``memory=False`` does not sample the PSS (``peak_pss_bytes`` 0): reading every
+    process's page map each 50 ms costs CPU that a 2-worker run on two cores would
+    otherwise have, and so would slow the very run whose wall time is measured.
+    """
     code = _CHILD.format(scenario=str(scenario), trials=trials, jobs=jobs, out=str(out))
     env = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONPATH": str(ROOT / "src")}
     t0 = time.perf_counter()
@@ -147,7 +154,8 @@ def watch_campaign(scenario: Path, jobs: int, trials: int, out: Path, limit_s: f
     peak, lines = 0, []
     os.set_blocking(child.stdout.fileno(), False)
     while child.poll() is None and time.perf_counter() - t0 < limit_s:
-        peak = max(peak, _tree_pss(proc))
+        if memory:
+            peak = max(peak, _tree_pss(proc))
         lines += child.stdout.readlines() or []
         time.sleep(0.05)
     stopped = child.poll() is None
@@ -196,7 +204,8 @@ def scaling_figures(folder: Path, trials: int = 40, pairs: int = 3) -> dict:
     runs: dict = {1: [], 2: []}
     for k in range(pairs):
         for jobs in (1, 2):
-            runs[jobs].append(watch_campaign(scen, jobs, trials, folder / f"s{jobs}_{k}", 1800.0))
+            out = folder / f"s{jobs}_{k}"
+            runs[jobs].append(watch_campaign(scen, jobs, trials, out, 1800.0, memory=False))
     ratios = [a["wall_s"] / b["wall_s"] for a, b in zip(runs[1], runs[2], strict=True)]
     return {
         "trials": trials,

@@ -32,13 +32,14 @@ result = campaign.run_campaign(
     load_scenario(sys.argv[1]), sys.argv[3:], jobs=2, out_dir=sys.argv[2], progress=None
 )
 frame = result.frame
-print(json.dumps({"method": method, "rows": _ROWS}))
+after = campaign.worker_start_method()
+print(json.dumps({"method": method, "after": after, "rows": _ROWS}))
 """.replace("_ROWS", "frame[['method', 'trial', 'end_error_m', 'track_ms_m2']].values.tolist()")
 
 
-def _pooled(scenario: Path, out: Path, start: str | None) -> dict:
+def _pooled(scenario: Path, out: Path, start: str | None, threads: str = "1") -> dict:
     src = str(Path(__file__).resolve().parents[2] / "src")
-    env = {**os.environ, "PYTHONPATH": src, "NUMBA_NUM_THREADS": "1"}
+    env = {**os.environ, "PYTHONPATH": src, "NUMBA_NUM_THREADS": threads}
     env.pop(campaign.START_METHOD_ENV, None)
     if start is not None:
         env[campaign.START_METHOD_ENV] = start
@@ -55,9 +56,12 @@ def test_forked_and_spawned_workers_give_the_one_process_table(tmp_path):
     scenario.write_text(yaml.safe_dump(small_mission_data("start", trials=TRIALS)))
     inline = run_campaign(load_scenario(scenario), METHODS, jobs=1, out_dir=tmp_path / "one")
     rows = inline.frame[["method", "trial", "end_error_m", "track_ms_m2"]].values.tolist()
+    # Two numba threads: the parent's own first trial must still leave it safe to fork
+    # (it runs the serial twins of the parallel kernels, geofix._threads).
     for start, expected in ((None, "fork"), ("spawn", "spawn")):
-        pooled = _pooled(scenario, tmp_path / expected, start)
+        pooled = _pooled(scenario, tmp_path / expected, start, threads="2")
         assert pooled["method"] == expected
+        assert pooled["after"] == expected
         assert pooled["rows"] == rows  # floats through JSON: exact (repr round-trips)
 
 

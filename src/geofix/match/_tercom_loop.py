@@ -22,6 +22,7 @@ import itertools
 import numba
 import numpy as np
 
+from geofix._threads import pick, twins
 from geofix.maps.mapread import bilinear_at
 
 MODES = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3}
@@ -53,7 +54,6 @@ def stencil_weights(col: np.ndarray, row: np.ndarray):
 
 
 # ----------------------------------------------------------------------------- kernel
-@numba.njit(cache=True, parallel=True)
 def _accumulate(
     values, cbase, rbase, w, col, row, h, kc, kr, p0, p1, span_lo, span_hi, sums, count, mode
 ):  # pragma: no cover - compiled
@@ -159,6 +159,10 @@ def _edge(values, c, r, h, sums, count, j, k, mode):  # pragma: no cover - compi
 
 
 # ----------------------------------------------------------------------------- driver
+_ACCUMULATE = twins(_accumulate, cache=True)
+"""``_accumulate`` compiled with numba's thread pool and without (:mod:`geofix._threads`)."""
+
+
 def loop_sums(values, col, row, h, kc, kr, mode, prune=None):
     """Sums and valid counts of every candidate, optionally with branch-and-bound.
 
@@ -199,9 +203,10 @@ def loop_sums(values, col, row, h, kc, kr, mode, prune=None):
     lo = np.zeros(kr.size, dtype=np.int64)
     hi = np.full(kr.size, kc.size, dtype=np.int64)
     bounds = _blocks(n) if prune is not None else [0, n]
+    accumulate = pick(_ACCUMULATE)
     best = np.inf
     for p0, p1 in itertools.pairwise(bounds):
-        _accumulate(values, *args, w, col, row, h, kc, kr, p0, p1, lo, hi, sums, count, int(mode))
+        accumulate(values, *args, w, col, row, h, kc, kr, p0, p1, lo, hi, sums, count, int(mode))
         if p1 < n:
             best = _prune(sums[0], count, n - p1, alive, best, prune[1], prune[2], lo, hi)
     return sums, count, alive

@@ -54,6 +54,7 @@ from typing import ClassVar
 import numba
 import numpy as np
 
+from geofix._threads import pick, twins
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.grid import Grid
 from geofix.measurement import predict_track
@@ -455,7 +456,7 @@ def translated_msd_scores(
     node_col, node_row = _node_cells(problem.grid, ends)
     measured = problem.measured.reshape(-1)
     keep = np.isfinite(measured)  # a missing measurement adds nothing to any candidate
-    return _translated_msd_kernel()(
+    return pick(_translated_msd_kernels())(
         np.ascontiguousarray(problem.grid.values),
         np.ascontiguousarray(rel_col.reshape(-1)[keep]),
         np.ascontiguousarray(rel_row.reshape(-1)[keep]),
@@ -526,15 +527,17 @@ _TRANSLATED_SIGNATURES = [
 
 
 @functools.cache
-def _translated_msd_kernel():
-    """The compiled kernel, built for both signatures (and cached on disk) at first use.
+def _translated_msd_kernels():
+    """The compiled kernels, with numba's thread pool and without (:mod:`geofix._threads`).
 
-    Eager signatures mean no match call pays for compilation; building it at first use
+    Both are built for both signatures (and cached on disk) at first use.
+
+    Eager signatures mean no match call pays for compilation; building them at first use
     rather than at import keeps ``import geofix`` from starting numba's threading layer
     (a parallel kernel does when it is loaded), which would make the calling process
     unsafe to fork (GNU OpenMP).
     """
-    return numba.njit(_TRANSLATED_SIGNATURES, parallel=True, cache=True)(_translated_msd)
+    return twins(_translated_msd, _TRANSLATED_SIGNATURES, cache=True)
 
 
 def _translated_msd(values, rel_col, rel_row, h, node_col, node_row, needed):  # pragma: no cover

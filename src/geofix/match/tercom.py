@@ -40,6 +40,7 @@ from typing import ClassVar
 import numba
 import numpy as np
 
+from geofix._threads import pick, twins
 from geofix.errors import ConfigError, MatchError
 from geofix.maps import mapread
 from geofix.maps.mapread import bilinear_at
@@ -416,7 +417,7 @@ def _finish(sums, count, n, mode, min_valid_fraction) -> np.ndarray:
 
 
 def _direct(values, samples, ocol, orow, metric, min_valid_fraction) -> np.ndarray:
-    return _cost_kernel(
+    return pick(_COST_KERNEL)(
         values,
         samples.col,
         samples.row,
@@ -428,7 +429,6 @@ def _direct(values, samples, ocol, orow, metric, min_valid_fraction) -> np.ndarr
     )
 
 
-@numba.njit(parallel=True, cache=True)
 def _cost_kernel(values, col, row, h, ocol, orow, metric, min_valid_fraction):  # pragma: no cover
     """The direct route: one compiled bilinear read per sample and candidate."""
     n = h.shape[0]
@@ -471,6 +471,10 @@ def _cost_kernel(values, col, row, h, ocol, orow, metric, min_valid_fraction):  
             else:
                 out[j, k] = acc / valid
     return out
+
+
+_COST_KERNEL = twins(_cost_kernel, cache=True)
+"""``_cost_kernel`` with numba's thread pool and without (:mod:`geofix._threads`)."""
 
 
 def _likelihood_scale(metric: str, problem: MatchProblem, best: float) -> float:
