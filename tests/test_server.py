@@ -220,3 +220,37 @@ def test_ping_message_carries_body_frame_beams_and_the_attitude():
     assert "roll_deg" not in ping_message(1.0, beams)
     with pytest.raises(ValueError, match="attitude"):
         ping_message(1.0, beams, roll_deg=float("nan"))
+
+
+@pytest.mark.parametrize(
+    "beams",
+    [
+        [[1.5, -2, 30.25], [0, 1e3, -4]],
+        [[1, 2, None], [3, 4, 5]],
+        [[1, 2, 3, 4], [5, 6, 7, 8]],
+        [[1, 2, True], [3, 4, 5]],
+        [[1, 2, "3"], [3, 4, 5]],
+        [[1, 2], [3, 4, 5, 6]],
+        [[1, 2, [3]], [3, 4, 5]],
+        [[1, 2, 3], "abc"],
+        [[1, 2, 3], {"a": 1, "b": 2, "c": 3}],
+        [[1, 2, 10**400], [3, 4, 5]],
+    ],
+)
+def test_the_one_pass_beam_read_agrees_with_the_checked_one(beams):
+    # The raw line decides whether the beams may be read in one pass (no boolean, no
+    # string beyond the keys); either way the array, or the error, is the checked path's.
+    from geofix.server import _beams, parse_request
+
+    line = json.dumps({"type": "ping", "t": 1.0, "beams": beams}).encode()
+    request = parse_request(line)
+    outcomes = []
+    for raw in (None, line):
+        try:
+            outcomes.append(_beams(request, 100, raw))
+        except Exception as exc:  # the outcome compared is the error itself
+            outcomes.append(f"{type(exc).__name__}: {exc}")
+    if isinstance(outcomes[0], str):
+        assert outcomes[1] == outcomes[0] and "beam" in outcomes[0]
+    else:
+        np.testing.assert_array_equal(outcomes[1], outcomes[0])

@@ -150,7 +150,7 @@ def _timing_table(timing: dict) -> str:
         "update, 64 beams used (ms)",
         "update, all 432 beams (ms)",
         "server round trip (ms)",
-        "round trip minus update (ms)",
+        "round trip minus the server's update (ms)",
         "server handling minus update, in-process (ms)",
     ]
     return md_table(header, rows)
@@ -178,9 +178,10 @@ def build(quick: bool = False) -> str:
         "the filter's update, the estimate) on the converged pings of the replay above "
         "(seed 1), one thread; the same ping sent through `geofix serve` over 127.0.0.1 "
         "by `geofix.client` (round trip with the client's JSON encoding, and the median "
-        "of round trip minus the same update made offline just before); and the server's "
-        "own request handling called in-process (JSON in and out, checks; no socket, no "
-        "thread wake-ups, which dominate the loopback figure on a loaded machine). "
+        "of round trip minus the update the server's own navigator made for that ping: "
+        "what serving adds, JSON both ways, checks, socket and thread wake-ups); and the "
+        "server's request handling called in-process (JSON in and out, checks; no socket) "
+        "minus the same update made offline. "
         f"Yardstick in the same run: a 300×300 matrix product took "
         f"{timing['yardstick_matmul_ms']:.2f} ms (the machine is shared; compare ratios). "
         "Regenerate with `python benchmarks/bench_navigator.py`.\n\n",

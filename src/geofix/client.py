@@ -69,7 +69,7 @@ class Client:
         reply = self._file.readline()
         if not reply:
             raise ServerError("the server closed the connection")
-        return json.loads(reply)
+        return orjson.loads(reply)
 
     def request(self, message: dict, check: bool = True) -> dict:
         """Send one request object and return its reply.

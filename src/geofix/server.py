@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import math
 import threading
@@ -113,13 +114,27 @@ def _number(request: dict, key: str) -> float:
 _NUMBER_OR_NULL = frozenset({int, float, type(None)})
 
 
-def _beams(request: dict, max_beams: int) -> np.ndarray:
+def _beams(request: dict, max_beams: int, line: bytes | None = None) -> np.ndarray:
     beams = request.get("beams")
     if not isinstance(beams, list) or not beams:
         raise RequestError("ping: beams must be a non-empty list of [across_m, along_m, value]")
     if len(beams) > max_beams:
         raise RequestError(f"ping: {len(beams)} beams, more than max_beams = {max_beams}")
     width = len(beams[0]) if isinstance(beams[0], list) and len(beams[0]) == 4 else 3
+    quick = None if line is None else _numbers_only(request, line, beams, width)
+    if quick is not None:
+        return quick
+    try:
+        return _checked_beams(beams, width)
+    except OverflowError:
+        raise RequestError("ping: a beam holds a number beyond the float range") from None
+
+
+def _checked_beams(beams: list, width: int) -> np.ndarray:
+    """``(b, width)`` beams, every row and item checked (null allowed as a value).
+
+    The message names the first row or item that is not a number.
+    """
     if (
         all(type(row) is list and len(row) == width for row in beams)
         and {type(v) for row in beams for v in row} <= _NUMBER_OR_NULL
@@ -141,6 +156,27 @@ def _beams(request: dict, max_beams: int) -> np.ndarray:
             else:
                 out[i, j] = v
     return out
+
+
+def _numbers_only(request: dict, line: bytes, beams: list, width: int) -> np.ndarray | None:
+    """The beams ``(b, width)`` read in one pass when the raw line proves them plain numbers.
+
+    A line without ``true`` / ``false`` holds no JSON boolean, and one whose only
+    quotation marks are those of its keys and of ``"ping"`` holds no other string (every
+    key has at least two, so any further string shows as more); then every beam row of
+    ``width`` items is numbers or nulls (null: NaN, as the checked path gives), and
+    :func:`numpy.fromiter` reads them without a Python loop. Anything else (None here)
+    goes through the checked path and its messages.
+    """
+    if b"true" in line or b"false" in line or line.count(b'"') != 2 * len(request) + 2:
+        return None
+    try:
+        if set(map(len, beams)) != {width}:
+            return None
+        flat = np.fromiter(itertools.chain.from_iterable(beams), float, len(beams) * width)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return flat.reshape(len(beams), width)
 
 
 class Session:
@@ -171,11 +207,13 @@ class Session:
         self.navigator = Navigator(grid, method, settings, seed, map_error, ins_model)
         self.grid = grid
         self._proj: Callable[[float, float], tuple[float, float]] | None = None  # lon, lat -> x, y
+        self._line = b""
 
     def handle(self, line: bytes) -> dict:
         """The reply to one request line (never raises)."""
         try:
             request = parse_request(line)
+            self._line = line  # the ping's raw bytes prove plain numbers (_numbers_only)
             estimate = getattr(self, f"_{request['type']}")(request)
             return {"ok": True, "type": request["type"], **estimate.to_dict()}
         except GeofixError as exc:
@@ -211,7 +249,7 @@ class Session:
         return self.navigator.motion(t, xy, heading)
 
     def _ping(self, request: dict):
-        beams = _beams(request, self.navigator.settings.max_beams)
+        beams = _beams(request, self.navigator.settings.max_beams, self._line)
         roll, pitch = (
             float(np.deg2rad(_number(request, key))) if key in request else None
             for key in ("roll_deg", "pitch_deg")
@@ -248,12 +286,29 @@ async def _lines(reader: asyncio.StreamReader):
 
 
 def _encode(reply: dict) -> bytes:
-    """One reply line; a reply that is not valid JSON (a NaN) becomes an error reply."""
+    """One reply line; a reply that is not valid JSON (a NaN) becomes an error reply.
+
+    orjson writes it (it would write a NaN as null, so the numbers are checked first).
+    """
     try:
-        text = json.dumps(reply, allow_nan=False, separators=(",", ":"))
-    except (TypeError, ValueError) as exc:
+        _require_finite(reply)
+        return orjson.dumps(reply, option=orjson.OPT_APPEND_NEWLINE)
+    except (TypeError, ValueError, orjson.JSONEncodeError) as exc:
         text = json.dumps({"ok": False, "error": f"internal error: reply not JSON ({exc})"})
     return (text + "\n").encode()
+
+
+def _require_finite(value) -> None:
+    """Raise ValueError on a NaN or infinite float anywhere in a reply."""
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError("Out of range float values are not JSON compliant")
+    elif isinstance(value, dict):
+        for item in value.values():
+            _require_finite(item)
+    elif isinstance(value, list | tuple):
+        for item in value:
+            _require_finite(item)
 
 
 OVERSIZED = {"ok": False, "error": f"request line longer than {MAX_LINE_BYTES} bytes"}
