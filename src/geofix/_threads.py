@@ -25,7 +25,7 @@ _serial_process = False
 
 def serial_kernels() -> bool:
     """True when compiled kernels should run on the calling thread only (see module)."""
-    return _serial_process or _serial_depth > 0 or numba.config.NUMBA_NUM_THREADS == 1
+    return _serial_process or _serial_depth > 0 or numba.config.NUMBA_NUM_THREADS == 1  # type: ignore[attr-defined]
 
 
 def use_serial_kernels() -> None:
