@@ -1,6 +1,6 @@
-"""Compiled loops of the particle filters: the motion move and systematic resampling.
+"""Compiled loops of the particle filters: the motion move, systematic resampling, ranges.
 
-Both give the very numbers of the numpy expressions they replace (element-wise the same
+They give the very numbers of the numpy expressions they replace (element-wise the same
 operations in the same order; the resampling indices by the same comparisons), without
 the temporaries a few-thousand-particle step otherwise allocates.
 """
@@ -36,3 +36,18 @@ def systematic_indices(cumulative, u, count):  # pragma: no cover - compiled
             i += 1
         out[j] = i
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def column_ranges(values):  # pragma: no cover - compiled
+    """``np.ptp(values, axis=0)`` of finite ``(M, d)`` values, in one row-order pass."""
+    low = values[0].copy()
+    high = values[0].copy()
+    for i in range(1, values.shape[0]):
+        for c in range(values.shape[1]):
+            v = values[i, c]
+            if v < low[c]:
+                low[c] = v
+            elif v > high[c]:
+                high[c] = v
+    return high - low

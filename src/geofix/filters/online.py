@@ -131,6 +131,11 @@ class NavigatorSettings:
         ``a = exp(-(t_k - t_{k-1}) / lag_s)`` and the first ping taken as settled, as a
         campaign's filters do (:func:`geofix.measurement.lag_compensated`); a ping whose
         beam count differs from the one before restarts the compensation.
+    report_status : bool
+        Work out the MLE and the convergence status of every estimate (default). False
+        (:meth:`passive`, a campaign trial's filter, where nothing reads them): the
+        estimate's ``mle`` is its mean and its status stays ``initialising`` /
+        ``converging``; the mean and covariance are the same either way.
     mount_offset_m : tuple of float
         The sensor's mounting offset from the navigation reference point, ``(across,
         along)`` or ``(across, along, down)`` metres in the body frame (starboard,
@@ -161,6 +166,7 @@ class NavigatorSettings:
     depth_bias_walk: float = 1e-3
     lag_s: float = 0.0
     mount_offset_m: tuple[float, ...] = (0.0, 0.0)
+    report_status: bool = True
 
     def __post_init__(self) -> None:
         positive = ("noise_std", "nis_limit", "max_beams")
@@ -209,9 +215,11 @@ class NavigatorSettings:
     def passive(cls) -> NavigatorSettings:
         """No gating, no re-initialisation, no input limits: a campaign trial's filter.
 
-        Nothing reads a trial's status, so the KL term is off too (it costs a binning).
+        Nothing reads a trial's status, so neither it nor the MLE is worked out
+        (``report_status=False``; the KL term would cost a binning).
         """
         return cls(
+            report_status=False,
             converge_kl_nats=None,
             gate_nis=None,
             nis_window=0,
@@ -684,11 +692,12 @@ class OnlineFilter:
     # ------------------------------------------------------------------ rules
     def _describe(self, t: float, nis: float, accepted: bool) -> Estimate:
         mean, cov = self.filter.estimate(self.state)
-        mle = mode_position(self.filter, self.state)
         mean, cov = np.asarray(mean, dtype=float), np.asarray(cov, dtype=float)
+        report = self.settings.report_status
+        mle = mode_position(self.filter, self.state) if report else mean.copy()
         status = "initialising" if self._accepted_count == 0 else "converging"
         kl = float("nan")
-        if status == "converging" and self._converged(mean, cov, mle):
+        if report and status == "converging" and self._converged(mean, cov, mle):
             status = "converged"
             if self.settings.converge_kl_nats is not None:
                 kl = posterior_kl(self.state)

@@ -253,7 +253,7 @@ class Pf(RecursiveFilter):
         index = systematic_resample(state.weights, rng, count)
         particles = state.particles[index]
         if self.roughening > 0:
-            spread = np.ptp(particles, axis=0)
+            spread = kernels.column_ranges(particles)  # np.ptp(particles, axis=0)
             sd = self.roughening * spread * particles.shape[0] ** (-1.0 / 2.0)
             particles = particles + sd * rng.standard_normal(particles.shape)
         log_weight = np.full(count, -np.log(count))
