@@ -116,3 +116,42 @@ def test_packed_saved_grid_is_left_to_xarray(tmp_path):
     packed.to_netcdf(tmp_path / "p.nc")
     assert io._read_saved_netcdf4(tmp_path / "p.nc", "p", None) is None
     np.testing.assert_allclose(load_grid(tmp_path / "p.nc").values, grid.values, atol=0.006)
+
+
+def _lonlat_files(tmp_path, values):
+    """The same lon/lat field as a netCDF (latitudes descending) and as a GeoTIFF."""
+    ny, nx = values.shape
+    lon = -20.0 + 0.01 * np.arange(nx)
+    lat = 38.0 + 0.01 * np.arange(ny)[::-1]
+    ds = xr.Dataset({"elevation": (("lat", "lon"), values)}, coords={"lon": lon, "lat": lat})
+    ds["lon"].attrs["units"] = "degrees_east"
+    ds["lat"].attrs["units"] = "degrees_north"
+    ds.to_netcdf(tmp_path / "geo.nc")
+    da = xr.DataArray(values, dims=("y", "x"), coords={"x": lon, "y": lat})
+    da.rio.write_crs("EPSG:4326").rio.to_raster(tmp_path / "geo.tif")
+    return tmp_path / "geo.nc", tmp_path / "geo.tif"
+
+
+@pytest.mark.usefixtures("small_blocks")
+def test_lonlat_maps_project_in_row_blocks_straight_into_float32(tmp_path, monkeypatch):
+    # Projected a few rows at a time (the same numbers as in one block) and stored in
+    # float32 when rounding the projected values' largest magnitude fits: exactly the
+    # float64 projection rounded afterwards (what a campaign's storage did); a tighter
+    # allowance keeps float64, bit for bit. GeoTIFF and netCDF alike.
+    import rioxarray  # noqa: F401 - registers the .rio accessor
+
+    from geofix.maps import project
+
+    for path in _lonlat_files(tmp_path, _field()):
+        exact = load_grid(path, resample_m=300.0)
+        peak = float(np.nanmax(np.abs(exact.values)))
+        monkeypatch.setattr(project, "PROJECT_BLOCK_NODES", 10)
+        blocked = load_grid(path, resample_m=300.0)
+        np.testing.assert_array_equal(blocked.values, exact.values)
+        compact = load_grid(path, resample_m=300.0, float32_within=float32_rounding(peak))
+        monkeypatch.undo()
+        assert exact.values.dtype == np.float64 and compact.values.dtype == np.float32
+        np.testing.assert_array_equal(compact.values, exact.values.astype(np.float32))
+        tight = load_grid(path, resample_m=300.0, float32_within=0.99 * float32_rounding(peak))
+        assert tight.values.dtype == np.float64
+        np.testing.assert_array_equal(tight.values, exact.values)

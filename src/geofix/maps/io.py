@@ -93,10 +93,12 @@ def load_grid(
     name : str, optional
         Map name (default: the builtin name or the file's stem).
     float32_within : float, optional
-        Largest rounding error allowed for float32 storage, map units: a netCDF map
-        that is used as read (metric, no ``resample_m``) is stored in float32 when
-        :func:`float32_rounding` of its largest magnitude is within it, else in float64
-        (the default, None: float64).
+        Largest rounding error allowed for float32 storage, map units: a netCDF or
+        GeoTIFF map that is used as read (metric, no ``resample_m``) is read straight
+        into float32, and a lon/lat map's projection is stored in float32, when
+        :func:`float32_rounding` of the largest magnitude is within it, else in float64
+        (the default, None: float64). The values are then exactly the float64 ones
+        rounded to float32, as a conversion afterwards would give them.
 
     Returns
     -------
@@ -122,7 +124,7 @@ def load_grid(
     if kind is not None and kind not in KINDS:
         raise MapError(f"map kind must be one of {KINDS}, got {kind!r}")
     source, file_path, default_kind = _resolve(path)
-    raw = _read(file_path, variable, source, None if resample_m is not None else float32_within)
+    raw = _read(file_path, variable, source, float32_within, resample_m is not None)
     if raw.saved is None:  # geofix's own grids may hold inf (e.g. a CRLB layer)
         _require_finite(raw.values, source)
     raw = _crop(raw, region, source)
@@ -132,7 +134,8 @@ def load_grid(
     units = raw.units or DEFAULT_UNITS[kind]
     name = name or (source.removeprefix(BUILTIN_PREFIX) if _is_builtin(path) else file_path.stem)
     labels = {"kind": kind, "units": units, "name": name}
-    return _to_metric(raw, resample_m, _provenance(raw, source, region), source, labels)
+    meta = _provenance(raw, source, region)
+    return _to_metric(raw, resample_m, meta, source, labels, float32_within)
 
 
 def save_grid(grid: Grid, path: str | Path) -> Path:
@@ -230,21 +233,27 @@ def _sniff(path: Path, source: str) -> str:
     raise MapError(f"not a netCDF / GeoTIFF / BAG file: {source} (starts with {head[:4]!r})")
 
 
-def _read(path: Path, variable: str | None, source: str, float32_within=None) -> _Raw:
-    """Dispatch on the file suffix (unknown suffixes try netCDF, then GeoTIFF)."""
+def _read(
+    path: Path, variable: str | None, source: str, float32_within=None, resampled=False
+) -> _Raw:
+    """Dispatch on the file suffix (unknown suffixes try netCDF, then GeoTIFF).
+
+    ``float32_within`` / ``resampled``: see :func:`_storage_within`.
+    """
     _sniff(path, source)
     suffix = path.suffix.lower()
+    precision = (float32_within, resampled)
     if suffix in BAG_SUFFIXES:
         return _read_bag(path, source)
     if suffix in GEOTIFF_SUFFIXES:
-        return _read_geotiff(path, variable, source)
+        return _read_geotiff(path, variable, source, precision)
     if suffix in NETCDF_SUFFIXES:
-        return _read_netcdf(path, variable, source, float32_within)
+        return _read_netcdf(path, variable, source, precision)
     try:
-        return _read_netcdf(path, variable, source, float32_within)
+        return _read_netcdf(path, variable, source, precision)
     except MapError:
         try:
-            return _read_geotiff(path, variable, source)
+            return _read_geotiff(path, variable, source, precision)
         except MapError:
             raise MapError(f"unrecognised map format: {source}") from None
 
@@ -271,14 +280,29 @@ def _open_netcdf(path: Path, source: str):
         raise MapError(f"cannot read {source} as netCDF: {_one_line(exc)}") from exc
 
 
-def _read_netcdf(path: Path, variable: str | None, source: str, float32_within=None) -> _Raw:
-    saved = _read_saved_netcdf4(path, source, float32_within)
+def _storage_within(precision: tuple, geographic: bool) -> float | None:
+    """Rounding allowed when reading the values in float32, map units (None: float64).
+
+    ``precision`` is ``(float32_within, resampled)``. A metric map used as read may round
+    by ``float32_within``; a lon/lat map is read in float64 and its projection stored in
+    float32 instead (:func:`geofix.maps.project.project_lonlat_grid`); a resampled metric
+    map stays float64.
+    """
+    within, resampled = precision
+    if geographic or resampled:
+        return None
+    return within
+
+
+def _read_netcdf(path: Path, variable: str | None, source: str, precision=(None, False)) -> _Raw:
+    saved_within = _storage_within(precision, False)
+    saved = _read_saved_netcdf4(path, source, saved_within)
     if saved is not None:
         return saved
     ds = _open_netcdf(path, source)
     with ds:
         if int(ds.attrs.get("geofix_grid", 0)) == 1:
-            return _saved_raw(ds.attrs, ds["z"], source, float32_within)
+            return _saved_raw(ds.attrs, ds["z"], source, saved_within)
         var = _pick_variable(ds, variable, source)
         da = _as_yx(ds[var], source)
         xname, yname = da.dims[1], da.dims[0]
@@ -291,7 +315,7 @@ def _read_netcdf(path: Path, variable: str | None, source: str, float32_within=N
         attrs = dict(da.attrs)
         geographic = _is_geographic(str(xname), str(yname), xa, ya, x, y)
         x, y, flips = _ascending_axes(x, y, source)
-        within = None if geographic else float32_within
+        within = _storage_within(precision, geographic)
         values = _numbers(da, f"variable {var!r}", source, flips, within)
     text = " ".join([var, str(attrs.get("long_name", "")), str(attrs.get("standard_name", ""))])
     units = attrs.get("units") or None
@@ -486,7 +510,7 @@ def _saved_raw(a: dict, z, source: str, float32_within: float | None = None) -> 
 
 
 # ---------------------------------------------------------------------- GeoTIFF
-def _read_geotiff(path: Path, variable: str | None, source: str) -> _Raw:
+def _read_geotiff(path: Path, variable: str | None, source: str, precision=(None, False)) -> _Raw:
     import rioxarray
 
     try:
@@ -500,13 +524,14 @@ def _read_geotiff(path: Path, variable: str | None, source: str) -> _Raw:
         crs = da.rio.crs
         x, y = da["x"].values.astype(float), da["y"].values.astype(float)
         data = da.isel(band=band) if "band" in da.dims else da
-        values = np.asarray(data.to_numpy(), dtype=float)
         attrs = dict(da.attrs)
-    if crs is not None:
-        geographic = bool(crs.is_geographic)
-    else:
-        geographic = _is_geographic("x", "y", {}, {}, x, y)
-    values, x, y = _ascending(np.asarray(values, dtype=float), x, y, source)
+        if crs is not None:
+            geographic = bool(crs.is_geographic)
+        else:
+            geographic = _is_geographic("x", "y", {}, {}, x, y)
+        x, y, flips = _ascending_axes(x, y, source)
+        within = _storage_within(precision, geographic)
+        values = _numbers(data, f"band {band + 1}", source, flips, within)
     units = attrs.get("units") or None
     text = f"{attrs.get('long_name', '')} {units or ''} {path.stem}"
     extra = {"crs": crs.to_string() if crs is not None else None}
@@ -575,16 +600,6 @@ def _ascending_axes(x: np.ndarray, y: np.ndarray, source: str):
             raise MapError(f"{source}: coordinates along axis {axis} are not monotonic")
     flips = (bool(x[-1] < x[0]), bool(y[-1] < y[0]))
     return (x[::-1] if flips[0] else x), (y[::-1] if flips[1] else y), flips
-
-
-def _ascending(values: np.ndarray, x: np.ndarray, y: np.ndarray, source: str):
-    """Flip axes so that x and y ascend (row 0 south, column 0 west)."""
-    x, y, (flip_x, flip_y) = _ascending_axes(x, y, source)
-    if flip_x:
-        values = values[:, ::-1]
-    if flip_y:
-        values = values[::-1, :]
-    return np.ascontiguousarray(values), x, y
 
 
 def _row_blocks(values: np.ndarray):
@@ -684,16 +699,22 @@ def _provenance(raw: _Raw, source: str, region) -> dict:
     return meta
 
 
-def _to_metric(raw: _Raw, cell_m: float | None, meta: dict, source: str, labels: dict) -> Grid:
-    """Project (lon/lat) or keep (metric) the raw grid, then resample if asked."""
+def _to_metric(
+    raw: _Raw, cell_m: float | None, meta: dict, source: str, labels: dict, float32_within=None
+) -> Grid:
+    """Project (lon/lat) or keep (metric) the raw grid, then resample if asked.
+
+    ``float32_within``: the rounding a lon/lat map's projection may take to be stored in
+    float32 (see :func:`geofix.maps.project.project_lonlat_grid`).
+    """
     _require_data(raw.values, source)
     if raw.geographic:
         _check_lonlat(raw, source)
-        pv = project.project_lonlat_grid(raw.values, raw.x, raw.y, cell_m)
+        pv = project.project_lonlat_grid(raw.values, raw.x, raw.y, cell_m, float32_within)
         _require_data(pv.values, source)
         meta["projection"] = pv.proj
         meta["native_spacing_m"] = project.native_spacing_m(raw.x, raw.y, pv.proj)
-        return Grid(pv.values, pv.x0, pv.y0, pv.dx, pv.dy, meta=meta, **labels)
+        return Grid(_frozen(pv.values), pv.x0, pv.y0, pv.dx, pv.dy, meta=meta, **labels)
     dx, dy = _spacing(raw)
     _check_regular(raw, dx, dy, source)
     meta["projection"] = None

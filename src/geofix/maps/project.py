@@ -20,6 +20,10 @@ from geofix.memory import cells_bytes, check_allocation
 # Float arrays of the output's size alive at once: node lon/lat, fractional indices,
 # bilinear weights and the result (projection); indices, weights, result (resampling).
 _PROJECT_COPIES = 18
+"""Float64 temporaries per node of a block being projected (meshgrid, lon/lat, indices)."""
+
+PROJECT_BLOCK_NODES = 1 << 18
+"""Nodes projected at a time (whole rows): about 40 MB of temporaries."""
 _RESAMPLE_COPIES = 14
 
 # Relative slack (in cells) that keeps nodes on the very edge of the source inside it
@@ -124,22 +128,33 @@ def fractional_index(axis: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 
 def project_lonlat_grid(
-    values: np.ndarray, lon: np.ndarray, lat: np.ndarray, cell_m: float | None = None
+    values: np.ndarray,
+    lon: np.ndarray,
+    lat: np.ndarray,
+    cell_m: float | None = None,
+    float32_within: float | None = None,
 ) -> ProjectedValues:
     """Project a lon/lat grid to a local transverse-Mercator frame and resample it.
 
     The metric grid covers the bounding box of the projected lon/lat box (nodes outside
     the source are NaN) with square cells of ``cell_m``; each node reads the source
-    bilinearly at its own lon/lat.
+    bilinearly at its own lon/lat. The nodes are projected and read a block of rows at a
+    time, straight into the output array.
 
     Parameters
     ----------
     values : numpy.ndarray
-        ``(ny, nx)`` field, row 0 at the south, column 0 at the west.
+        ``(ny, nx)`` field, row 0 at the south, column 0 at the west (float32 or float64;
+        read as it is).
     lon, lat : numpy.ndarray
         ``(nx,)`` and ``(ny,)`` strictly ascending cell-centre coordinates, degrees.
     cell_m : float, optional
         Metric cell size, metres; default the smaller native spacing at the grid centre.
+    float32_within : float, optional
+        Store the projected values in float32 when rounding their largest magnitude
+        changes it by at most this, map units (each bilinear read, computed in float64,
+        rounded once when stored: the very numbers of a float64 projection converted
+        afterwards); otherwise, or None, float64.
 
     Returns
     -------
@@ -159,17 +174,30 @@ def project_lonlat_grid(
     p = Proj(proj)
     xmin, xmax, ymin, ymax = _footprint(lon, lat, p)
     nx, ny = (xmax - xmin) / cell_m + 1, (ymax - ymin) / cell_m + 1
+    dtype = np.dtype(np.float64 if float32_within is None else np.float32)
+    rows = max(1, int(PROJECT_BLOCK_NODES // max(nx, 1.0)))
     check_allocation(
-        cells_bytes(nx, ny, copies=_PROJECT_COPIES),
+        cells_bytes(nx, ny, itemsize=dtype.itemsize)
+        + cells_bytes(nx, min(rows, ny), copies=_PROJECT_COPIES),
         f"map projected at {cell_m:g} m cells ({nx:.0f} x {ny:.0f})",
     )
     x = _axis_nodes(xmin, xmax, cell_m)
     y = _axis_nodes(ymin, ymax, cell_m)
-    node_x, node_y = np.meshgrid(x, y)
-    node_lon, node_lat = p(node_x, node_y, inverse=True)
-    col = fractional_index(lon, node_lon)
-    row = fractional_index(lat, node_lat)
-    out = _bilinear(np.asarray(values, dtype=float), col, row)
+    out = np.empty((y.size, x.size), dtype)
+    source = values if values.dtype in (np.float32, np.float64) else values.astype(float)
+    peak = 0.0
+    for r0 in range(0, y.size, rows):
+        node_x, node_y = np.meshgrid(x, y[r0 : r0 + rows])
+        node_lon, node_lat = p(node_x, node_y, inverse=True)
+        col = fractional_index(lon, node_lon)
+        row = fractional_index(lat, node_lat)
+        block = _bilinear(source, col, row)
+        out[r0 : r0 + rows] = block
+        low, high = np.fmin.reduce(block, axis=None), np.fmax.reduce(block, axis=None)
+        peak = max(peak, abs(float(low)), abs(float(high))) if high == high else peak
+    if float32_within is not None and not peak * 2.0**-24 <= float32_within:
+        del out
+        return project_lonlat_grid(values, lon, lat, cell_m)
     return ProjectedValues(out, float(x[0]), float(y[0]), float(cell_m), float(cell_m), proj)
 
 
