@@ -137,6 +137,38 @@ def _inside(x, lower, upper):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _draw_sca(rng, r2, r3, coin):  # pragma: no cover - compiled
+    """One SCA iteration's draws into buffers, in the order of the numpy engine.
+
+    ``r2 ~ U(0, 2 pi)``, then ``r3 ~ U(0, 2)``, then the sine/cosine coin ``U(0, 1)``,
+    each array filled row by row -- the draws of ``rng.uniform(..., shape)`` and
+    ``rng.random(shape)`` without allocating them.
+    """
+    flat2, flat3, flatc = r2.reshape(-1), r3.reshape(-1), coin.reshape(-1)
+    for q in range(flat2.shape[0]):
+        flat2[q] = rng.uniform(0.0, 2 * np.pi)
+    for q in range(flat3.shape[0]):
+        flat3[q] = rng.uniform(0.0, 2.0)
+    for q in range(flatc.shape[0]):
+        flatc[q] = rng.random()
+
+
+@numba.njit(cache=True)
+def _sca_step(z, x, elite, half, p, r1, r2, r3, coin):  # pragma: no cover - compiled
+    """SCA position update in place: ``z <- clip(z + r1 w |r3 p - z|, -1, 1)``, ``x = e + z h``.
+
+    ``w`` is ``sin r2`` where the coin is below 0.5, else ``cos r2`` (Mirjalili 2016,
+    eq. 3.3), in coordinates normalised to the SCA box (``e`` the elite, ``h`` the half-widths).
+    """
+    for q in range(z.shape[0]):
+        for g in range(z.shape[1]):
+            wave = np.sin(r2[q, g]) if coin[q, g] < 0.5 else np.cos(r2[q, g])
+            step = z[q, g] + r1 * wave * abs(r3[q, g] * p[g] - z[q, g])
+            z[q, g] = min(max(step, -1.0), 1.0)
+            x[q, g] = elite[g] + z[q, g] * half[g]
+
+
+@numba.njit(cache=True)
 def sca_refine(
     rng, elite, half, lower, upper, population, iterations, a, fitness
 ):  # pragma: no cover - compiled
@@ -161,13 +193,11 @@ def sca_refine(
     cost, sca_cost, mad = ga_costs(*head, x, *tail)
     best = int(np.argmin(sca_cost))
     p, p_cost, p_ga, p_mad = z[best].copy(), sca_cost[best], cost[best], mad[best]
+    r2, r3, coin = np.empty(z.shape), np.empty(z.shape), np.empty(z.shape)
     for t in range(iterations):
         r1 = a * (1.0 - t / iterations)
-        r2 = rng.uniform(0.0, 2 * np.pi, z.shape)
-        r3 = rng.uniform(0.0, 2.0, z.shape)
-        wave = np.where(rng.random(z.shape) < 0.5, np.sin(r2), np.cos(r2))
-        z = np.clip(z + r1 * wave * np.abs(r3 * p - z), -1.0, 1.0)
-        x = elite + z * half
+        _draw_sca(rng, r2, r3, coin)
+        _sca_step(z, x, elite, half, p, r1, r2, r3, coin)
         cost, sca_cost, mad = ga_costs(*head, x, *tail)
         k = int(np.argmin(sca_cost))
         if sca_cost[k] < p_cost:
