@@ -213,14 +213,6 @@ def sca_refine(
 
 
 @numba.njit(cache=True)
-def _clip_box(x, lower, upper):  # pragma: no cover - compiled
-    for p in range(x.shape[0]):
-        for g in range(x.shape[1]):
-            x[p, g] = min(max(x[p, g], lower[g]), upper[g])
-    return x
-
-
-@numba.njit(cache=True)
 def ga_offspring(
     rng, pool, pool_cost, population, crossover_rate, mutation_rate, mutation_scale, lower, upper
 ):  # pragma: no cover - compiled
@@ -240,30 +232,30 @@ def ga_offspring(
     a = rng.integers(0, pool_cost.shape[0], count)
     b = rng.integers(0, pool_cost.shape[0], count)
     winner = np.empty(count, dtype=np.int64)
-    parents = np.empty((count, 4))
     for q in range(count):
         winner[q] = a[q] if pool_cost[a[q]] <= pool_cost[b[q]] else b[q]
-        parents[q] = pool[winner[q]]
-    first, second = parents[0::2], parents[1::2]
-    pairs = first.shape[0]
+    pairs = count // 2
     beta = rng.uniform(-0.25, 1.25, (pairs, 4))
     cross = rng.random(pairs) < crossover_rate
+    kids = np.empty((count, 4))
     for q in range(pairs):
-        if not cross[q]:
-            beta[q] = 1.0
-    kids = np.empty((2 * pairs, 4))
-    kids[:pairs] = beta * first + (1 - beta) * second
-    kids[pairs:] = (1 - beta) * first + beta * second
-    kids = _clip_box(kids, lower, upper)
-    half = 0.5 * (upper - lower)
+        first, second = pool[winner[2 * q]], pool[winner[2 * q + 1]]
+        for g in range(4):
+            w = beta[q, g] if cross[q] else 1.0
+            kids[q, g] = min(max(w * first[g] + (1 - w) * second[g], lower[g]), upper[g])
+            kids[pairs + q, g] = min(max((1 - w) * first[g] + w * second[g], lower[g]), upper[g])
     hit = rng.random(kids.shape) < mutation_rate
-    step = rng.standard_normal(kids.shape) * mutation_scale * half
-    kids = _clip_box(kids + hit * step, lower, upper)
-    source = np.full(2 * pairs, -1, dtype=np.int64)
-    for q in range(2 * pairs):
-        pair = q % pairs
-        if not cross[pair] and not hit[q].any():
-            source[q] = winner[2 * pair + q // pairs]
+    step = rng.standard_normal(kids.shape)
+    source = np.full(count, -1, dtype=np.int64)
+    for q in range(count):
+        mutated = False
+        for g in range(4):
+            if hit[q, g]:
+                mutated = True
+                jump = step[q, g] * mutation_scale * (0.5 * (upper[g] - lower[g]))
+                kids[q, g] = min(max(kids[q, g] + jump, lower[g]), upper[g])
+        if not mutated and not cross[q % pairs]:
+            source[q] = winner[2 * (q % pairs) + q // pairs]
     return kids[: population - 1].copy(), source[: population - 1].copy()
 
 
