@@ -10,7 +10,7 @@ import numpy as np
 
 from geofix.errors import MatchError
 from geofix.measurement import residuals
-from geofix.problem import MatchProblem, footprint_xy
+from geofix.problem import MatchProblem
 
 
 def adaptive_spacing(depth_std: float, cell_m: float, mu1: float, mu2: float) -> float:
@@ -146,7 +146,10 @@ def beam_positions(
     """Footprints of the chosen beams for transformed tracks.
 
     The heading of a track rotated counter-clockwise by ``theta`` is the indicated
-    heading minus ``theta`` (headings are clockwise from north).
+    heading minus ``theta`` (headings are clockwise from north); its sine and cosine
+    come from the angle-difference identity (``sin(psi - theta) = sin psi cos theta -
+    cos psi sin theta``, ``cos(psi - theta) = cos psi cos theta + sin psi sin theta``),
+    the operations in the order of the compiled GA-SCA fitness.
 
     Parameters
     ----------
@@ -164,8 +167,16 @@ def beam_positions(
     tuple of numpy.ndarray
         ``(x, y)`` each ``(P, n, s)``, metres.
     """
-    heading = problem.heading[None, :] - np.asarray(theta)[:, None]
-    return footprint_xy(tracks, heading, problem.offsets[beams])
+    theta = np.asarray(theta, dtype=float)[:, None]
+    c, sn = np.cos(theta), np.sin(theta)
+    sin_h, cos_h = np.sin(problem.heading)[None, :], np.cos(problem.heading)[None, :]
+    ss = (sin_h * c - cos_h * sn)[..., None]
+    cs = (cos_h * c + sin_h * sn)[..., None]
+    offsets = problem.offsets[beams]
+    across, along = offsets[:, 0], offsets[:, 1]
+    x = tracks[..., 0:1] + across * cs + along * ss
+    y = tracks[..., 1:2] - across * ss + along * cs
+    return x, y
 
 
 def translation_covariance(

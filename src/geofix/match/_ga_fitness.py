@@ -23,7 +23,8 @@ def ga_costs(
     values,
     geometry,
     indicated,
-    heading,
+    sin_heading,
+    cos_heading,
     pivot,
     offsets,
     params,
@@ -44,11 +45,14 @@ def ga_costs(
         ``(4,)`` ``x0, y0, dx, dy`` of the map, metres.
     indicated : numpy.ndarray
         ``(n, 2)`` indicated track, metres.
-    heading : numpy.ndarray
-        ``(n,)`` indicated heading, radians clockwise from north. The footprints use
-        ``sin``/``cos`` of ``psi - theta`` exactly as the numpy formulation does (an
-        angle-difference identity would save two calls per sample but round differently,
-        and a GA amplifies a last-bit difference into another search path).
+    sin_heading, cos_heading : numpy.ndarray
+        ``(n,)`` sine and cosine of the indicated heading ``psi`` (clockwise from north).
+        The footprint heading ``psi - theta`` enters through the angle-difference
+        identity, ``sin(psi - theta) = sin psi cos theta - cos psi sin theta`` and
+        ``cos(psi - theta) = cos psi cos theta + sin psi sin theta``, in the same order
+        of operations as the numpy formulation (:func:`geofix.match._affine.beam_positions`)
+        so that both engines round alike (a GA amplifies a last-bit difference into
+        another search path); it saves two trigonometric calls per sample.
     pivot : numpy.ndarray
         ``(2,)`` pivot of rotation and scale, metres.
     offsets : numpy.ndarray
@@ -86,8 +90,8 @@ def ga_costs(
             rx, ry = indicated[i, 0] - pivot[0], indicated[i, 1] - pivot[1]
             px = pivot[0] + alpha * (c * rx - sn * ry) + tx
             py = pivot[1] + alpha * (sn * rx + c * ry) + ty
-            psi = heading[i] - theta
-            ss, cs = np.sin(psi), np.cos(psi)
+            ss = sin_heading[i] * c - cos_heading[i] * sn
+            cs = cos_heading[i] * c + sin_heading[i] * sn
             for b in range(s):
                 h = measured[i, b]
                 if h != h:
@@ -133,6 +137,38 @@ def _inside(x, lower, upper):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
+def _draw_sca(rng, r2, r3, coin):  # pragma: no cover - compiled
+    """One SCA iteration's draws into buffers, in the order of the numpy engine.
+
+    ``r2 ~ U(0, 2 pi)``, then ``r3 ~ U(0, 2)``, then the sine/cosine coin ``U(0, 1)``,
+    each array filled row by row -- the draws of ``rng.uniform(..., shape)`` and
+    ``rng.random(shape)`` without allocating them.
+    """
+    flat2, flat3, flatc = r2.reshape(-1), r3.reshape(-1), coin.reshape(-1)
+    for q in range(flat2.shape[0]):
+        flat2[q] = rng.uniform(0.0, 2 * np.pi)
+    for q in range(flat3.shape[0]):
+        flat3[q] = rng.uniform(0.0, 2.0)
+    for q in range(flatc.shape[0]):
+        flatc[q] = rng.random()
+
+
+@numba.njit(cache=True)
+def _sca_step(z, x, elite, half, p, r1, r2, r3, coin):  # pragma: no cover - compiled
+    """SCA position update in place: ``z <- clip(z + r1 w |r3 p - z|, -1, 1)``, ``x = e + z h``.
+
+    ``w`` is ``sin r2`` where the coin is below 0.5, else ``cos r2`` (Mirjalili 2016,
+    eq. 3.3), in coordinates normalised to the SCA box (``e`` the elite, ``h`` the half-widths).
+    """
+    for q in range(z.shape[0]):
+        for g in range(z.shape[1]):
+            wave = np.sin(r2[q, g]) if coin[q, g] < 0.5 else np.cos(r2[q, g])
+            step = z[q, g] + r1 * wave * abs(r3[q, g] * p[g] - z[q, g])
+            z[q, g] = min(max(step, -1.0), 1.0)
+            x[q, g] = elite[g] + z[q, g] * half[g]
+
+
+@numba.njit(cache=True)
 def sca_refine(
     rng, elite, half, lower, upper, population, iterations, a, fitness
 ):  # pragma: no cover - compiled
@@ -145,40 +181,35 @@ def sca_refine(
     Returns
     -------
     tuple
-        ``(new_elite, its GA cost, final SCA population inside the box, their GA costs)``.
+        ``(new_elite, its GA cost, its mean absolute difference, final SCA population
+        inside the box, their GA costs, their mean absolute differences, number of
+        individuals scored)``.
     """
     head, tail = fitness
+    scored = population * (iterations + 1)
     z = rng.uniform(-1.0, 1.0, (population, 4))
     z[0] = 0.0
     x = elite + z * half
-    cost, sca_cost, _ = ga_costs(*head, x, *tail)
+    cost, sca_cost, mad = ga_costs(*head, x, *tail)
     best = int(np.argmin(sca_cost))
-    p, p_cost, p_ga = z[best].copy(), sca_cost[best], cost[best]
+    p, p_cost, p_ga, p_mad = z[best].copy(), sca_cost[best], cost[best], mad[best]
+    r2, r3, coin = np.empty(z.shape), np.empty(z.shape), np.empty(z.shape)
     for t in range(iterations):
         r1 = a * (1.0 - t / iterations)
-        r2 = rng.uniform(0.0, 2 * np.pi, z.shape)
-        r3 = rng.uniform(0.0, 2.0, z.shape)
-        wave = np.where(rng.random(z.shape) < 0.5, np.sin(r2), np.cos(r2))
-        z = np.clip(z + r1 * wave * np.abs(r3 * p - z), -1.0, 1.0)
-        x = elite + z * half
-        cost, sca_cost, _ = ga_costs(*head, x, *tail)
+        _draw_sca(rng, r2, r3, coin)
+        _sca_step(z, x, elite, half, p, r1, r2, r3, coin)
+        cost, sca_cost, mad = ga_costs(*head, x, *tail)
         k = int(np.argmin(sca_cost))
         if sca_cost[k] < p_cost:
-            p, p_cost, p_ga = z[k].copy(), sca_cost[k], cost[k]
+            p, p_cost, p_ga, p_mad = z[k].copy(), sca_cost[k], cost[k], mad[k]
     inside = _inside(x, lower, upper)
     new_elite = elite + p * half
     if not _inside(new_elite.reshape(1, 4), lower, upper)[0]:
         new_elite = np.minimum(np.maximum(new_elite, lower), upper)
-        p_ga = ga_costs(*head, new_elite.reshape(1, 4), *tail)[0][0]
-    return new_elite, p_ga, x[inside], cost[inside]
-
-
-@numba.njit(cache=True)
-def _clip_box(x, lower, upper):  # pragma: no cover - compiled
-    for p in range(x.shape[0]):
-        for g in range(x.shape[1]):
-            x[p, g] = min(max(x[p, g], lower[g]), upper[g])
-    return x
+        clipped = ga_costs(*head, new_elite.reshape(1, 4), *tail)
+        p_ga, p_mad = clipped[0][0], clipped[2][0]
+        scored += 1
+    return new_elite, p_ga, p_mad, x[inside], cost[inside], mad[inside], scored
 
 
 @numba.njit(cache=True)
@@ -188,53 +219,99 @@ def ga_offspring(
     """Tournament selection, BLX-0.25 crossover and Gaussian mutation, compiled.
 
     The same random draws, in the same order and shapes, as the numpy operators of
-    :class:`GaSca` (``_tournament``, ``_crossover``, ``_mutate``); returns the
-    ``population - 1`` children.
+    :class:`GaSca` (``_tournament``, ``_crossover``, ``_mutate``).
+
+    Returns
+    -------
+    tuple
+        ``(children, source)``: the ``(population - 1, 4)`` children and, for each, the
+        index in ``pool`` of the parent it is a bit-for-bit copy of (its pair was not
+        crossed and none of its genes mutated), ``-1`` for a new individual.
     """
     count = 2 * (population // 2)
     a = rng.integers(0, pool_cost.shape[0], count)
     b = rng.integers(0, pool_cost.shape[0], count)
-    parents = np.empty((count, 4))
+    winner = np.empty(count, dtype=np.int64)
     for q in range(count):
-        parents[q] = pool[a[q]] if pool_cost[a[q]] <= pool_cost[b[q]] else pool[b[q]]
-    first, second = parents[0::2], parents[1::2]
-    pairs = first.shape[0]
+        winner[q] = a[q] if pool_cost[a[q]] <= pool_cost[b[q]] else b[q]
+    pairs = count // 2
     beta = rng.uniform(-0.25, 1.25, (pairs, 4))
     cross = rng.random(pairs) < crossover_rate
+    kids = np.empty((count, 4))
     for q in range(pairs):
-        if not cross[q]:
-            beta[q] = 1.0
-    kids = np.empty((2 * pairs, 4))
-    kids[:pairs] = beta * first + (1 - beta) * second
-    kids[pairs:] = (1 - beta) * first + beta * second
-    kids = _clip_box(kids, lower, upper)
-    half = 0.5 * (upper - lower)
+        first, second = pool[winner[2 * q]], pool[winner[2 * q + 1]]
+        for g in range(4):
+            w = beta[q, g] if cross[q] else 1.0
+            kids[q, g] = min(max(w * first[g] + (1 - w) * second[g], lower[g]), upper[g])
+            kids[pairs + q, g] = min(max((1 - w) * first[g] + w * second[g], lower[g]), upper[g])
     hit = rng.random(kids.shape) < mutation_rate
-    step = rng.standard_normal(kids.shape) * mutation_scale * half
-    kids = _clip_box(kids + hit * step, lower, upper)
-    return kids[: population - 1].copy()
+    step = rng.standard_normal(kids.shape)
+    source = np.full(count, -1, dtype=np.int64)
+    for q in range(count):
+        mutated = False
+        for g in range(4):
+            if hit[q, g]:
+                mutated = True
+                jump = step[q, g] * mutation_scale * (0.5 * (upper[g] - lower[g]))
+                kids[q, g] = min(max(kids[q, g] + jump, lower[g]), upper[g])
+        if not mutated and not cross[q % pairs]:
+            source[q] = winner[2 * (q % pairs) + q // pairs]
+    return kids[: population - 1].copy(), source[: population - 1].copy()
 
 
 @numba.njit(cache=True)
-def _merge_pool(pop, cost, k, elite, elite_cost, sca_pop, sca_cost):  # pragma: no cover
+def score_children(children, source, pool_cost, pool_mad, fitness):  # pragma: no cover
+    """GA costs and mean absolute differences of the children, each new one scored once.
+
+    A child that copies a pool member (``source >= 0``, see :func:`ga_offspring`) takes
+    that member's numbers; the others go through :func:`ga_costs` in one call.
+
+    Returns
+    -------
+    tuple
+        ``(cost, mad, scored)``: ``(P,)`` arrays and the number of children scored.
+    """
+    head, tail = fitness
+    fresh = np.nonzero(source < 0)[0]
+    new_cost, _, new_mad = ga_costs(*head, children[fresh], *tail)
+    cost = np.empty(children.shape[0])
+    mad = np.empty(children.shape[0])
+    for q in range(children.shape[0]):
+        if source[q] >= 0:
+            cost[q] = pool_cost[source[q]]
+            mad[q] = pool_mad[source[q]]
+    cost[fresh] = new_cost
+    mad[fresh] = new_mad
+    return cost, mad, fresh.shape[0]
+
+
+@numba.njit(cache=True)
+def _merge_pool(
+    pop, cost, mad, k, elite, elite_numbers, sca_pop, sca_cost, sca_mad
+):  # pragma: no cover
     """The selection pool: population without its elite, refined elite, SCA population.
 
-    The order of ``vstack([delete(pop, k), elite, sca_pop])`` in the numpy engine.
+    The order of ``vstack([delete(pop, k), elite, sca_pop])`` in the numpy engine;
+    ``elite_numbers`` is the elite's ``(GA cost, mean absolute difference)``. Returns
+    the pool and its GA costs and mean absolute differences.
     """
     n, m = pop.shape[0], sca_pop.shape[0]
     pool = np.empty((n + m, 4))
     pool_cost = np.empty(n + m)
+    pool_mad = np.empty(n + m)
     j = 0
     for p in range(n):
         if p != k:
             pool[j] = pop[p]
             pool_cost[j] = cost[p]
+            pool_mad[j] = mad[p]
             j += 1
     pool[j] = elite
-    pool_cost[j] = elite_cost
+    pool_cost[j], pool_mad[j] = elite_numbers
     pool[j + 1 :] = sca_pop
     pool_cost[j + 1 :] = sca_cost
-    return pool, pool_cost
+    pool_mad[j + 1 :] = sca_mad
+    return pool, pool_cost, pool_mad
 
 
 @numba.njit(cache=True)
@@ -243,7 +320,8 @@ def ga_search(rng, pop, cost, mad, fitness, box, ga_settings, sca_settings):  # 
 
     The same steps and random draws, in the same order, as the generation loop of
     :meth:`geofix.match.ga_sca.GaSca.match` with ``engine="numpy"``: SCA refinement of the
-    elite, selection pool, offspring, scoring, stop rule.
+    elite, selection pool, offspring, scoring (children that copy a pool member keep its
+    numbers, :func:`score_children`), stop rule.
 
     Parameters
     ----------
@@ -264,10 +342,11 @@ def ga_search(rng, pop, cost, mad, fitness, box, ga_settings, sca_settings):  # 
     Returns
     -------
     tuple
-        ``(best_x, best_cost, archive_params, archive_mad, last_gain, generations)``: the
-        archive holds the initial population and every generation's children.
+        ``(best_x, best_cost, archive_params, archive_mad, last_gain, generations,
+        scored)``: the archive holds the initial population and every generation's
+        children; ``scored`` counts the individuals passed to :func:`ga_costs` after the
+        initial population.
     """
-    head, tail = fitness
     lower, upper, half = box
     max_gen, stall, tolerance, crossover, mutation_rate, mutation_scale = ga_settings
     uses_sca, sca_population, sca_iterations, sca_a = sca_settings
@@ -277,22 +356,27 @@ def ga_search(rng, pop, cost, mad, fitness, box, ga_settings, sca_settings):  # 
     archive[:population] = pop
     archive_mad[:population] = mad
     used = population
+    scored = 0
     k = int(np.argmin(cost))
     best_x, best_cost = pop[k].copy(), cost[k]
     last_gain, generation = 0, 0
     for generation in range(1, max_gen + 1):
         k = int(np.argmin(cost))
-        elite, elite_cost = pop[k].copy(), cost[k]
-        pool, pool_cost = pop, cost
+        elite, elite_cost, elite_mad = pop[k].copy(), cost[k], mad[k]
+        pool, pool_cost, pool_mad = pop, cost, mad
         if uses_sca:
-            elite, elite_cost, sca_pop, sca_cost = sca_refine(
+            elite, elite_cost, elite_mad, sca_pop, sca_cost, sca_mad, sca_scored = sca_refine(
                 rng, elite, half, lower, upper, sca_population, sca_iterations, sca_a, fitness
             )
-            pool, pool_cost = _merge_pool(pop, cost, k, elite, elite_cost, sca_pop, sca_cost)
-        children = ga_offspring(
+            scored += sca_scored
+            pool, pool_cost, pool_mad = _merge_pool(
+                pop, cost, mad, k, elite, (elite_cost, elite_mad), sca_pop, sca_cost, sca_mad
+            )
+        children, source = ga_offspring(
             rng, pool, pool_cost, population, crossover, mutation_rate, mutation_scale, lower, upper
         )
-        new_cost, _, new_mad = ga_costs(*head, children, *tail)
+        new_cost, new_mad, fresh = score_children(children, source, pool_cost, pool_mad, fitness)
+        scored += fresh
         archive[used : used + children.shape[0]] = children
         archive_mad[used : used + children.shape[0]] = new_mad
         used += children.shape[0]
@@ -302,6 +386,9 @@ def ga_search(rng, pop, cost, mad, fitness, box, ga_settings, sca_settings):  # 
         cost = np.empty(population)
         cost[0] = elite_cost
         cost[1:] = new_cost
+        mad = np.empty(population)
+        mad[0] = elite_mad
+        mad[1:] = new_mad
         k = int(np.argmin(cost))
         if cost[k] < best_cost * (1 - tolerance):
             last_gain = generation
@@ -309,4 +396,4 @@ def ga_search(rng, pop, cost, mad, fitness, box, ga_settings, sca_settings):  # 
             best_x, best_cost = pop[k].copy(), cost[k]
         if generation - last_gain >= stall:
             break
-    return best_x, best_cost, archive[:used], archive_mad[:used], last_gain, generation
+    return best_x, best_cost, archive[:used], archive_mad[:used], last_gain, generation, scored

@@ -50,7 +50,10 @@ the stop rule -- runs in one compiled call per match (:func:`geofix.match._ga_fi
 each population is scored in one pass of transform, footprints, the shared bilinear read
 and the three costs); ``engine="numpy"`` keeps the vectorised numpy formulation (one
 look-up of all individuals x samples x sequences, the loop in Python) as the reference.
-Both draw the same random numbers in the same order and give the same fix.
+Both draw the same random numbers in the same order and give the same fix. In both, a
+child that is a bit-for-bit copy of a parent (its pair not crossed, none of its genes
+mutated: about 8 % of the children) keeps the parent's costs instead of being scored
+again; the ``candidates`` diagnostic counts the individuals actually scored.
 """
 
 from __future__ import annotations
@@ -69,15 +72,15 @@ from geofix.match._affine import (
     translation_covariance,
     window_std,
 )
-from geofix.match._ga_fitness import ga_costs, ga_offspring, ga_search, sca_refine
+from geofix.match._ga_fitness import ga_costs, ga_search
 from geofix.match.integrity import terrain_integrity
 from geofix.problem import Fix, MatchProblem
 
 _VARIANTS = {"A": (True, True), "B": (True, False), "C": (False, True), "D": (False, False)}
 
-_FitnessHead = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-"""``ga_costs`` arguments before ``params``: values, geometry, indicated, heading, pivot,
-offsets."""
+_FitnessHead = tuple[np.ndarray, ...]
+"""``ga_costs`` arguments before ``params``: values, geometry, indicated, sin and cos of the
+heading, pivot, offsets."""
 _FitnessTail = tuple[np.ndarray, np.ndarray, np.ndarray, bool, float, int]
 """``ga_costs`` arguments after ``params``: measured, decay, weights, new_fitness,
 min_valid_fraction, n_valid."""
@@ -100,7 +103,8 @@ class _Context:
     values: np.ndarray
     geometry: np.ndarray
     indicated: np.ndarray
-    heading: np.ndarray
+    sin_heading: np.ndarray
+    cos_heading: np.ndarray
     offsets: np.ndarray
     counter: list = field(default_factory=lambda: [0])
 
@@ -251,7 +255,7 @@ class GaSca:
         best_x, best_cost = pop[np.argmin(cost)].copy(), float(np.min(cost))
         last_gain, generation = 0, 0
         for generation in range(1, self.max_generations + 1):
-            pop, cost, mad = self._generation(ctx, pop, cost, rng, archive)
+            pop, cost, mad = self._generation(ctx, pop, cost, mad, rng, archive)
             k = int(np.argmin(cost))
             if cost[k] < best_cost * (1 - self.tolerance):
                 last_gain = generation
@@ -280,7 +284,7 @@ class GaSca:
             int(self.sca_iterations),
             float(self.sca_a),
         )
-        best_x, best_cost, params, mads, last_gain, generations = ga_search(
+        best_x, best_cost, params, mads, last_gain, generations, scored = ga_search(
             rng,
             np.ascontiguousarray(pop, dtype=float),
             cost,
@@ -290,95 +294,85 @@ class GaSca:
             ga_settings,
             sca_settings,
         )
-        per_generation = self.population - 1
-        if self.uses_sca:
-            per_generation += self.sca_population * (self.sca_iterations + 1)
-        ctx.counter[0] += generations * per_generation
+        ctx.counter[0] += int(scored)
         if not np.isfinite(best_cost):
             raise MatchError("ga-sca: no candidate in the search box lies on valid map data")
         archive = [(params, mads)]
         return self._fix(ctx, best_x, float(best_cost), archive, last_gain, generations)
 
-    def _generation(self, ctx, pop, cost, rng, archive):
-        """One GA generation: SCA on the elite, selection, crossover, mutation."""
+    def _generation(self, ctx, pop, cost, mad, rng, archive):
+        """One GA generation (numpy engine): SCA on the elite, selection, crossover, mutation.
+
+        Returns the new population with its GA costs and mean absolute differences; a
+        child that copies a pool member bit for bit keeps that member's numbers.
+        """
         k = int(np.argmin(cost))
-        elite, elite_cost = pop[k].copy(), cost[k]
-        pool, pool_cost = pop, cost
+        elite, elite_cost, elite_mad = pop[k].copy(), cost[k], mad[k]
+        pool, pool_cost, pool_mad = pop, cost, mad
         if self.uses_sca:
-            elite, elite_cost, sca_pop, sca_cost = self._sca(ctx, elite, rng)
+            elite, elite_cost, elite_mad, sca_pop, sca_cost, sca_mad = self._sca_numpy(
+                ctx, elite, rng, _sca_half_widths(ctx)
+            )
             pool = np.vstack([np.delete(pop, k, axis=0), elite[None], sca_pop])
             pool_cost = np.concatenate([np.delete(cost, k), [elite_cost], sca_cost])
-        children = self._offspring(ctx, pool, pool_cost, rng)
-        new_cost, _, new_mad = self._evaluate(ctx, children)
+            pool_mad = np.concatenate([np.delete(mad, k), [elite_mad], sca_mad])
+        children, source = self._offspring(ctx, pool, pool_cost, rng)
+        new_cost, new_mad = pool_cost[source], pool_mad[source]
+        fresh = source < 0
+        if fresh.any():
+            scored = self._evaluate(ctx, children[fresh])
+            new_cost[fresh], new_mad[fresh] = scored[0], scored[2]
         archive.append((children, new_mad))
         return (
             np.vstack([elite[None], children]),
             np.concatenate([[elite_cost], new_cost]),
-            new_mad,
+            np.concatenate([[elite_mad], new_mad]),
         )
 
     # ------------------------------------------------------------------ operators
     def _offspring(self, ctx, pool, pool_cost, rng):
-        """``population - 1`` children: tournament, crossover, mutation."""
-        if self.engine == "numpy":
-            parents = pool[_tournament(pool_cost, 2 * (self.population // 2), rng)]
-            children = self._mutate(self._crossover(parents, rng, ctx), rng, ctx)
-            return children[: self.population - 1]
-        return ga_offspring(
-            rng,
-            np.ascontiguousarray(pool, dtype=float),
-            np.ascontiguousarray(pool_cost, dtype=float),
-            int(self.population),
-            float(self.crossover_rate),
-            float(self.mutation_rate),
-            float(self.mutation_scale),
-            ctx.lower,
-            ctx.upper,
-        )
+        """``population - 1`` children (tournament, crossover, mutation) and their source.
+
+        ``source`` is, per child, the index in ``pool`` of the parent it copies bit for
+        bit (its pair was not crossed and no gene mutated), ``-1`` for a new individual.
+        """
+        winner = _tournament(pool_cost, 2 * (self.population // 2), rng)
+        kids, cross = self._crossover(pool[winner], rng, ctx)
+        children, hit = self._mutate(kids, rng, ctx)
+        copies = ~np.concatenate([cross, cross]) & ~hit.any(axis=1)
+        parent = np.concatenate([winner[0::2], winner[1::2]])
+        source = np.where(copies, parent, -1)
+        keep = self.population - 1
+        return children[:keep], source[:keep]
 
     def _crossover(self, parents, rng, ctx):
-        """Blend crossover (BLX-0.25) of consecutive parent pairs."""
+        """Blend crossover (BLX-0.25) of consecutive parent pairs; also which pairs crossed."""
         a, b = parents[0::2], parents[1::2]
         beta = rng.uniform(-0.25, 1.25, size=a.shape)
         cross = rng.random(len(a)) < self.crossover_rate
         beta[~cross] = 1.0
         kids = np.vstack([beta * a + (1 - beta) * b, (1 - beta) * a + beta * b])
-        return np.clip(kids, ctx.lower, ctx.upper)
+        return np.clip(kids, ctx.lower, ctx.upper), cross
 
     def _mutate(self, kids, rng, ctx):
-        """Gaussian mutation of each gene with probability ``mutation_rate``."""
+        """Gaussian mutation of each gene with probability ``mutation_rate``; also the hits."""
         half = 0.5 * (ctx.upper - ctx.lower)
         hit = rng.random(kids.shape) < self.mutation_rate
         step = rng.standard_normal(kids.shape) * self.mutation_scale * half
-        return np.clip(kids + hit * step, ctx.lower, ctx.upper)
-
-    def _sca(self, ctx, elite, rng):
-        """Sine-cosine refinement around the elite; returns new elite and SCA population."""
-        half = _sca_half_widths(ctx)
-        if self.engine == "numpy":
-            return self._sca_numpy(ctx, elite, rng, half)
-        ctx.counter[0] += self.sca_population * (self.sca_iterations + 1)
-        new_elite, p_ga, x, cost = sca_refine(
-            rng,
-            np.asarray(elite, dtype=float),
-            half,
-            ctx.lower,
-            ctx.upper,
-            int(self.sca_population),
-            int(self.sca_iterations),
-            float(self.sca_a),
-            self._fitness_args(ctx),
-        )
-        return new_elite, float(p_ga), x, cost
+        return np.clip(kids + hit * step, ctx.lower, ctx.upper), hit
 
     def _sca_numpy(self, ctx, elite, rng, half):
-        """The SCA refinement in numpy (reference of :func:`sca_refine`)."""
+        """The SCA refinement in numpy (reference of the compiled ``sca_refine``).
+
+        Returns the new elite, its GA cost and mean absolute difference, and the final
+        SCA population inside the box with its GA costs and mean absolute differences.
+        """
         z = rng.uniform(-1.0, 1.0, size=(self.sca_population, 4))
         z[0] = 0.0
         x = elite + z * half
-        cost, sca_cost = self._evaluate(ctx, x)[:2]
+        cost, sca_cost, mad = self._evaluate(ctx, x)
         best = int(np.argmin(sca_cost))
-        p, p_cost, p_ga = z[best].copy(), sca_cost[best], cost[best]
+        p, p_cost, p_ga, p_mad = z[best].copy(), sca_cost[best], cost[best], mad[best]
         for t in range(self.sca_iterations):
             r1 = self.sca_a * (1.0 - t / self.sca_iterations)
             r2 = rng.uniform(0.0, 2 * np.pi, z.shape)
@@ -386,17 +380,17 @@ class GaSca:
             wave = np.where(rng.random(z.shape) < 0.5, np.sin(r2), np.cos(r2))
             z = np.clip(z + r1 * wave * np.abs(r3 * p - z), -1.0, 1.0)
             x = elite + z * half
-            cost, sca_cost = self._evaluate(ctx, x)[:2]
+            cost, sca_cost, mad = self._evaluate(ctx, x)
             k = int(np.argmin(sca_cost))
             if sca_cost[k] < p_cost:
-                p, p_cost, p_ga = z[k].copy(), sca_cost[k], cost[k]
+                p, p_cost, p_ga, p_mad = z[k].copy(), sca_cost[k], cost[k], mad[k]
         inside = np.all((x >= ctx.lower) & (x <= ctx.upper), axis=1)
         new_elite = elite + p * half
         if not np.all((new_elite >= ctx.lower) & (new_elite <= ctx.upper)):
-            new_elite, p_ga = np.clip(new_elite, ctx.lower, ctx.upper), None
-        if p_ga is None:
-            p_ga = self._evaluate(ctx, new_elite[None])[0][0]
-        return new_elite, p_ga, x[inside], cost[inside]
+            new_elite = np.clip(new_elite, ctx.lower, ctx.upper)
+            clipped = self._evaluate(ctx, new_elite[None])
+            p_ga, p_mad = clipped[0][0], clipped[2][0]
+        return new_elite, p_ga, p_mad, x[inside], cost[inside], mad[inside]
 
     # ------------------------------------------------------------------ costs
     def _evaluate(self, ctx: _Context, params: np.ndarray):
@@ -409,7 +403,15 @@ class GaSca:
 
     def _fitness_args(self, ctx: _Context) -> tuple[_FitnessHead, _FitnessTail]:
         """Arguments of :func:`ga_costs` before and after ``params``."""
-        head = (ctx.values, ctx.geometry, ctx.indicated, ctx.heading, ctx.pivot, ctx.offsets)
+        head = (
+            ctx.values,
+            ctx.geometry,
+            ctx.indicated,
+            ctx.sin_heading,
+            ctx.cos_heading,
+            ctx.pivot,
+            ctx.offsets,
+        )
         tail = (
             ctx.measured,
             ctx.decay,
@@ -484,7 +486,8 @@ class GaSca:
             values=np.ascontiguousarray(problem.grid.values),
             geometry=np.array([grid.x0, grid.y0, grid.dx, grid.dy], dtype=float),
             indicated=np.ascontiguousarray(problem.indicated, dtype=float),
-            heading=np.ascontiguousarray(problem.heading, dtype=float),
+            sin_heading=np.sin(np.asarray(problem.heading, dtype=float)),
+            cos_heading=np.cos(np.asarray(problem.heading, dtype=float)),
             offsets=np.ascontiguousarray(problem.offsets[beams], dtype=float),
         )
 
