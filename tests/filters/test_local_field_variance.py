@@ -14,7 +14,7 @@ from scipy.stats import multivariate_normal
 from geofix.errors import ConfigError
 from geofix.filters.base import Observation
 from geofix.filters.mpf import Mpf
-from geofix.filters.pf import Pf, PfState, particle_log_likelihood
+from geofix.filters.pf import Pf, PfState, particle_log_likelihood, spread_field_variance
 from geofix.filters.pmf import Pmf
 from geofix.maps.grid import Grid
 from geofix.measurement import (
@@ -134,19 +134,26 @@ def test_field_variance_is_checked(cls, default):
 
 
 def test_particle_likelihood_follows_the_setting():
-    grid, offsets, measured, nodes = _rough_and_flat()
+    grid, offsets, measured, nodes = _rough_and_flat()  # 100 m map cells
     obs = Observation(measured, nodes[0], 0.0, offsets, 4.0, 0)
-    state = PfState(nodes, np.log([0.5, 0.5]), grid.cell_size, spacing=400.0)
-    rng = np.random.default_rng(0)
-    local = particle_log_likelihood(Pf(field_variance="local"), grid, state, obs, rng)
     args = (grid, nodes, 0.0, offsets, measured, 4.0)
-    expected = local_field_log_likelihood(*args, 400 * np.eye(2))
-    np.testing.assert_array_equal(local, expected)
-    dense = PfState(nodes, state.log_weight, grid.cell_size, spacing=0.0)
-    off = particle_log_likelihood(Pf(), grid, dense, obs, rng)
-    np.testing.assert_array_equal(
-        off, hypotheses_log_likelihood(grid, nodes, 0.0, offsets, measured, 4.0)
-    )
+    weights = np.log([0.5, 0.5])
+    local = Pf(field_variance="local")
+    # a share one map cell across: each particle's own field variation
+    state = PfState(nodes, weights, grid.cell_size, spacing=100.0)
+    got = particle_log_likelihood(local, grid, state, obs, np.random.default_rng(0))
+    np.testing.assert_array_equal(got, local_field_log_likelihood(*args, 100.0 * np.eye(2)))
+    # four cells across: the global variance, drawn as Pf(field_variance="global") draws it
+    coarse = PfState(nodes, weights, grid.cell_size, spacing=400.0)
+    got = particle_log_likelihood(local, grid, coarse, obs, np.random.default_rng(1))
+    want = particle_log_likelihood(Pf(), grid, coarse, obs, np.random.default_rng(1))
+    np.testing.assert_array_equal(got, want)
+    spread = spread_field_variance(grid, coarse, obs, np.random.default_rng(1))
+    np.testing.assert_allclose(want, hypotheses_log_likelihood(*args[:-1], 4.0 + spread))
+    # a dense set (spacing 0): no discretisation noise
+    dense = PfState(nodes, weights, grid.cell_size, spacing=0.0)
+    got = particle_log_likelihood(local, grid, dense, obs, np.random.default_rng(0))
+    np.testing.assert_array_equal(got, hypotheses_log_likelihood(*args))
 
 
 @pytest.mark.parametrize("inside", [False, True])

@@ -329,6 +329,22 @@ FIELD_VARIANCES = ("local", "global")
 """The discretisation-noise models of the filters (``field_variance``)."""
 
 
+LOCAL_MAX_SPACING_CELLS = 1.0
+"""Largest share side, map cells, at which ``field_variance=local`` is used; a coarser set
+falls back to the global variance. Within one map cell the bilinear field is linear along
+each axis, so its change over a side describes the field across the share; over several
+cells it does not (on rough terrain the beams' variations within a share ten cells wide
+are nearly independent, the global model's assumption, and the local slope misleads)."""
+
+
+def uses_local_field(filt, side: float, cell: float) -> bool:
+    """Whether ``filt`` takes the local field variance for a share of ``side`` metres.
+
+    ``field_variance=local`` and ``0 < side <= LOCAL_MAX_SPACING_CELLS * cell``.
+    """
+    return filt.field_variance == "local" and 0 < side <= LOCAL_MAX_SPACING_CELLS * cell
+
+
 def check_field_variance(name: str, value: str) -> None:
     """Raise :class:`ConfigError` unless ``value`` is one of :data:`FIELD_VARIANCES`."""
     if value not in FIELD_VARIANCES:
@@ -340,13 +356,14 @@ def particle_log_likelihood(filt, grid: Grid, state: PfState, obs: Observation, 
 
     ``filt`` gives ``discretisation_noise`` and ``field_variance``: none when off or the
     set is dense (``spacing`` 0); each particle's own field variance within its square
-    share (``local``); or one variance for all (``global``, :func:`spread_field_variance`,
+    share (``local``, while the share is at most :data:`LOCAL_MAX_SPACING_CELLS` map
+    cells across); or one variance for all (``global``, :func:`spread_field_variance`,
     drawing from ``rng``).
     """
     var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
     args = (obs.heading, obs.offsets, obs.values)
     if filt.discretisation_noise and state.spacing > 0:
-        if filt.field_variance != "global":
+        if uses_local_field(filt, state.spacing, state.cell):
             sides = state.spacing * np.eye(2)
             return local_field_log_likelihood(
                 grid, state.particles, *args, var, sides, obs.bias_var

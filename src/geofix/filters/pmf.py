@@ -77,7 +77,7 @@ from geofix.filters import _grid_kernels as grid_kernels
 from geofix.filters import _grid_ops as ops
 from geofix.filters._pmf_errstate import conditional_motion, dvl_update, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.pf import check_field_variance
+from geofix.filters.pf import check_field_variance, uses_local_field
 from geofix.maps.grid import Grid
 from geofix.measurement import (
     local_field_log_likelihood,
@@ -204,8 +204,10 @@ class Pmf(RecursiveFilter):
         to the next node along each grid axis at its own beams, as one offset within the
         cell common to the beams (:func:`~geofix.measurement.node_grid_local_log_likelihood`):
         a node a fraction of a cell off the truth on rough terrain is not over-penalised,
-        nor a wrong one on flat ground over-rewarded. ``global``: one variance for the
-        whole grid, the mean over nodes and beams (the earlier model).
+        nor a wrong one on flat ground over-rewarded; while the node spacing is at most
+        :data:`~geofix.filters.pf.LOCAL_MAX_SPACING_CELLS` map cells (a coarser grid
+        takes the global one). ``global``: one variance for the whole grid, the mean
+        over nodes and beams (the earlier model).
     ambiguity_radius_cells : float
         Radius around the fix, map cells, for the integrity flag.
     ambiguity_mass : float
@@ -322,7 +324,7 @@ class Pmf(RecursiveFilter):
             state = self._dvl_update(state, state.dvl[obs.index])
         if not np.isfinite(obs.values).any():
             return state
-        if self.discretisation_noise and self.field_variance != "global":
+        if self.discretisation_noise and uses_local_field(self, state.spacing.max(), state.cell):
             return self._update_local(state, obs, grid)
         if obs.bias_var > 0 or grid.interpolation != "bilinear":
             return self._update_reference(state, obs, grid)
