@@ -214,3 +214,101 @@ def node_ll_flattened(
         for j in range(n1):
             out[i, j] = _term_sum(p[i, j], measured, flat, off_map)
     return field_var
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_REASSOC)
+def _local_term_sum(f0, f1, f2, measured, var, off_map):  # pragma: no cover - compiled
+    """Log-likelihood of the beams from a position anywhere in the hypothesis's share.
+
+    ``f0`` the reads at the hypothesis, ``f1``, ``f2`` at its position moved by each
+    side of the share (``(b,)`` each). The reading of beam ``k`` from a position uniform
+    over the share is, to first order, ``f0_k + (d1_k a + d2_k c)`` with ``a``, ``c``
+    uniform on ``[-1/2, 1/2]`` (variance 1/12) for all beams at once: the residual ``r``
+    is ``N(0, R + D D^T / 12)``, ``D`` the ``(b, 2)`` differences. With ``W = R^-1``
+    (Woodbury, matrix determinant lemma): ``r^T S^-1 r = r^T W r - u^T (12 I + D^T W D)^-1 u``,
+    ``u = D^T W r``, and ``log(det S / det R) = log det(I + D^T W D / 12)``. A
+    non-finite difference counts 0; an off-map read costs ``off_map``.
+    """
+    q = 0.0
+    a11 = a12 = a22 = 0.0
+    u1 = u2 = 0.0
+    penalty = 0.0
+    for k in range(measured.shape[0]):
+        d1 = f1[k] - f0[k]
+        d2 = f2[k] - f0[k]
+        d1 = d1 if np.isfinite(d1) else 0.0
+        d2 = d2 if np.isfinite(d2) else 0.0
+        r = measured[k] - f0[k]
+        if not np.isfinite(r):
+            penalty += off_map
+            continue
+        w = 1.0 / var[k]
+        q += w * r * r
+        a11 += w * d1 * d1
+        a12 += w * d1 * d2
+        a22 += w * d2 * d2
+        u1 += w * d1 * r
+        u2 += w * d2 * r
+    m11 = 12.0 + a11
+    m22 = 12.0 + a22
+    det = m11 * m22 - a12 * a12
+    explained = (m22 * u1 * u1 - 2.0 * a12 * u1 * u2 + m11 * u2 * u2) / det
+    log_det = np.log(det / 144.0)
+    return -0.5 * (q - explained + log_det) + penalty
+
+
+@numba.njit(cache=True, nogil=True)
+def hypotheses_ll_local(
+    values, origin, cell, px, py, bcol, brow, shifts, measured, var, off_map, out
+):  # pragma: no cover - compiled
+    """``out[i]``: log-likelihood from ``(px[i], py[i])`` with its own field variance.
+
+    ``shifts`` ``(2, 2)`` are the two sides of the hypothesis's share in map cells (rows
+    ``(dcol, drow)``); the field is read at the hypothesis and at its position moved by
+    each side (checked reads there), the likelihood of :func:`_local_term_sum`.
+    """
+    n = px.shape[0]
+    b = measured.shape[0]
+    cols = np.empty(n)
+    rows = np.empty(n)
+    bounds = np.array([np.inf, -np.inf, np.inf, -np.inf])
+    finite = True
+    for i in range(n):
+        c = (px[i] - origin[0]) / cell[0]
+        r = (py[i] - origin[1]) / cell[1]
+        cols[i] = c
+        rows[i] = r
+        finite = finite and c == c and r == r
+        _widen(bounds, c, r)
+    inside = finite and _all_inside(values, bounds, bcol, brow)
+    f0 = np.empty(b)
+    f1 = np.empty(b)
+    f2 = np.empty(b)
+    for i in range(n):
+        c, r = cols[i], rows[i]
+        for k in range(b):
+            ck = c + bcol[k]
+            rk = r + brow[k]
+            f0[k] = _read_inside(values, ck, rk) if inside else bilinear_at(values, ck, rk)
+            f1[k] = bilinear_at(values, ck + shifts[0, 0], rk + shifts[0, 1])
+            f2[k] = bilinear_at(values, ck + shifts[1, 0], rk + shifts[1, 1])
+        out[i] = _local_term_sum(f0, f1, f2, measured, var, off_map)
+
+
+@numba.njit(cache=True, nogil=True)
+def node_ll_local(
+    values, origin, cell, centre, axes, u, v, bcol, brow, measured, var, off_map, p, out
+):  # pragma: no cover - compiled
+    """Node log-likelihoods, each node with its own field variation within its cell.
+
+    ``u``, ``v`` hold one node more than the grid along each axis (``N0 + 1``,
+    ``N1 + 1``), ``p`` is a scratch ``(N0 + 1, N1 + 1, b)`` array: every read is made
+    once, and the next node along each axis gives the field's change over one node step
+    (:func:`_local_term_sum`). ``out`` is ``(N0, N1)``.
+    """
+    inside = _nodes_inside(values, origin, cell, centre, axes, u, v, bcol, brow)
+    for i in range(u.shape[0]):
+        _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, i, p, inside)
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            out[i, j] = _local_term_sum(p[i, j], p[i + 1, j], p[i, j + 1], measured, var, off_map)

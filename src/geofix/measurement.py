@@ -210,6 +210,161 @@ def hypotheses_log_likelihood(
     return out.reshape(positions.shape[:-1])
 
 
+def local_field_log_likelihood(
+    grid: Grid,
+    positions: np.ndarray,
+    heading: float,
+    offsets,
+    measured,
+    noise_var,
+    sides,
+    bias_var: float = 0.0,
+) -> np.ndarray:
+    r"""Log-likelihood of every hypothesis with the field's variation within its own share.
+
+    A point-mass node or a particle stands for the vehicle anywhere in its share of the
+    area, a parallelogram with the two ``sides`` centred on the hypothesis. With the
+    position uniform there, the reading of beam ``k`` is, to first order,
+    ``f_k + d1_k a + d2_k c``: ``f_k`` the map read from the hypothesis, ``d1_k``, ``d2_k``
+    the change of that read when the hypothesis moves by each side, and ``a``, ``c``
+    uniform on ``[-1/2, 1/2]`` (variance 1/12), the same two numbers for every beam. The
+    residual ``r = y - f`` is then ``N(0, R + D D^T / 12)`` (``R`` the diagonal sensor plus
+    map variance, ``D`` the ``(b, 2)`` differences): the discretisation noise of the
+    approximation, local to each hypothesis and common to its beams, and
+
+    ``log L = -0.5 (r^T W r - u^T (12 I + D^T W D)^-1 u + log det(I + D^T W D / 12))``
+
+    with ``W = R^-1`` and ``u = D^T W r`` (Woodbury's identity and the matrix determinant
+    lemma; the ``log det R`` common to every hypothesis is dropped). On rough terrain the
+    residual of a hypothesis a fraction of its share off the truth lies along ``D`` and
+    is discounted, while a residual no shift within the share explains is not; the
+    log-determinant is the price of the wider density. A hypothesis whose field does not
+    change within its share (``D = 0``) has the numbers of
+    :func:`hypotheses_log_likelihood`.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    positions : numpy.ndarray
+        ``(..., 2)`` hypothesised vehicle positions, metres.
+    heading : float
+        Heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets, metres.
+    measured : numpy.ndarray
+        ``(b,)`` measured values (NaN = missing beam).
+    noise_var : float or numpy.ndarray
+        Measurement variance, map units squared, scalar or ``(b,)`` (positive).
+    sides : numpy.ndarray
+        ``(2, 2)`` the two sides of a hypothesis's share as rows ``(dx, dy)``, metres.
+    bias_var : float
+        Variance of an offset common to every beam, marginalised out as well (a third
+        column ``sqrt(12 bias_var) 1`` of ``D``); with it, or a map read other than
+        bilinear, the numbers come from the prediction arrays
+        (:func:`local_field_reference`).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(...)`` log-likelihoods up to a constant (off-map beams cost
+        :data:`OFF_MAP_LOG_LIKELIHOOD` each; a difference off the map counts 0).
+    """
+    positions = np.asarray(positions, dtype=float)
+    sides = np.asarray(sides, dtype=float).reshape(2, 2)
+    if bias_var > 0 or grid.interpolation != "bilinear":
+        return local_field_reference(
+            grid, positions, heading, offsets, measured, noise_var, sides, bias_var
+        )
+    bcol, brow, y, var = _measured_beams(grid, heading, offsets, measured, noise_var)
+    px = np.ascontiguousarray(positions[..., 0].ravel())
+    py = np.ascontiguousarray(positions[..., 1].ravel())
+    out = np.empty(px.size)
+    origin, cell = _origin_cell(grid)
+    shifts = np.ascontiguousarray(sides / cell)  # (dcol, drow) per side
+    values = _map_values(grid)
+    off = OFF_MAP_LOG_LIKELIHOOD
+    kernels.hypotheses_ll_local(values, origin, cell, px, py, bcol, brow, shifts, y, var, off, out)
+    return out.reshape(positions.shape[:-1])
+
+
+def node_grid_local_log_likelihood(
+    grid: Grid,
+    frame: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    spacing,
+    heading: float,
+    offsets,
+    measured,
+    noise_var,
+) -> np.ndarray:
+    """:func:`local_field_log_likelihood` at every node of a regular point-mass grid.
+
+    Node ``[i, j]`` sits at ``centre + u[i] axes[:, 0] + v[j] axes[:, 1]`` and its cell's
+    sides are one node step along each axis (``spacing`` ``(2,)``, metres). One compiled
+    pass reads the field once from every node and from one more row and column of nodes
+    beyond the grid; the next node along each axis gives the field's change over the
+    cell (the reads of :func:`local_field_reference` at the moved nodes, to the rounding
+    of the node positions). Bilinear map reads; no common offset.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N0, N1)`` log-likelihoods up to a constant.
+    """
+    centre, axes, u, v = (np.ascontiguousarray(a, dtype=float) for a in frame)
+    spacing = np.asarray(spacing, dtype=float)
+    u1 = np.append(u, u[-1] + spacing[0])
+    v1 = np.append(v, v[-1] + spacing[1])
+    bcol, brow, y, var = _measured_beams(grid, heading, offsets, measured, noise_var)
+    out = np.empty((u.size, v.size))
+    origin, cell = _origin_cell(grid)
+    p = _scratch(u1.size, v1.size, bcol.size)
+    off = OFF_MAP_LOG_LIKELIHOOD
+    values = _map_values(grid)
+    kernels.node_ll_local(
+        values, origin, cell, centre, axes, u1, v1, bcol, brow, y, var, off, p, out
+    )
+    return out
+
+
+def local_field_reference(
+    grid: Grid, positions, heading: float, offsets, measured, noise_var, sides, bias_var=0.0
+) -> np.ndarray:
+    """:func:`local_field_log_likelihood` from the prediction arrays (any map read).
+
+    The reads at the hypotheses and at the hypotheses moved by each side
+    (:func:`predict_measurements`), then the Gaussian of covariance ``R + Z Z^T`` per
+    hypothesis, ``Z = [D / sqrt(12), sqrt(bias_var) 1]`` (without the last column when
+    ``bias_var`` is 0), by a small solve per hypothesis. Arguments as
+    :func:`local_field_log_likelihood`.
+    """
+    positions = np.asarray(positions, dtype=float)
+    sides = np.asarray(sides, dtype=float).reshape(2, 2)
+    measured = np.asarray(measured, dtype=float)
+    f0 = predict_measurements(grid, positions, heading, offsets)
+    f0 = f0.reshape(-1, measured.shape[0])
+    columns = []
+    for side in sides:
+        moved = predict_measurements(grid, positions + side, heading, offsets)
+        d = moved.reshape(f0.shape) - f0
+        columns.append(np.where(np.isfinite(d), d, 0.0) / np.sqrt(12.0))
+    if bias_var > 0:
+        columns.append(np.full(f0.shape, np.sqrt(bias_var)))
+    z = np.stack(columns, axis=-1)  # (m, b, c)
+    residual = measured - f0
+    valid = np.isfinite(residual)
+    off_map = (~valid & np.isfinite(measured)).sum(axis=-1)
+    inv_var = np.broadcast_to(1.0 / np.asarray(noise_var, dtype=float), measured.shape)
+    w = np.where(valid, inv_var, 0.0)
+    r = np.where(valid, residual, 0.0)
+    u = np.einsum("mbc,mb->mc", z, w * r)
+    inner = np.eye(z.shape[-1]) + np.einsum("mbc,mb,mbd->mcd", z, w, z)
+    explained = np.einsum("mc,mc->m", u, np.linalg.solve(inner, u[..., None])[..., 0])
+    quad = (w * r * r).sum(axis=-1) - explained
+    ll = -0.5 * (quad + np.linalg.slogdet(inner)[1]) + OFF_MAP_LOG_LIKELIHOOD * off_map
+    return ll.reshape(positions.shape[:-1])
+
+
 def node_grid_log_likelihood(
     grid: Grid,
     frame: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
@@ -501,7 +656,8 @@ def common_bias_log_likelihood(predicted, measured, noise_var, bias_var: float) 
     measured : numpy.ndarray
         ``(b,)`` measured values (NaN = missing beam, ignored).
     noise_var : float or numpy.ndarray
-        Per-beam variance, scalar or ``(b,)``, map units squared.
+        Per-beam variance, scalar, ``(b,)`` or per hypothesis ``(..., b)``, map units
+        squared.
     bias_var : float
         ``P``, variance of the common offset, map units squared.
 
@@ -512,7 +668,7 @@ def common_bias_log_likelihood(predicted, measured, noise_var, bias_var: float) 
     """
     measured = np.asarray(measured, dtype=float)
     predicted = np.asarray(predicted, dtype=float)
-    inv_var = np.broadcast_to(1.0 / np.asarray(noise_var, dtype=float), measured.shape)
+    inv_var = 1.0 / np.asarray(noise_var, dtype=float)  # scalar, (b,) or (..., b)
     residual = measured - predicted
     valid = np.isfinite(residual)
     off_map = (~valid & np.isfinite(measured)).sum(axis=-1)

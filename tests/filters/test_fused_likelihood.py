@@ -17,6 +17,7 @@ from geofix.filters.pmf import Pmf, PmfState, node_field_variance
 from geofix.maps.grid import Grid
 from geofix.measurement import (
     hypotheses_log_likelihood,
+    local_field_reference,
     log_likelihood,
     node_grid_log_likelihood,
     predict_measurements,
@@ -106,8 +107,14 @@ def test_pmf_and_pf_updates_are_the_reference_updates():
     predicted = predict_measurements(grid, xy, obs.heading, offsets)
     var = var_b + node_field_variance(predicted, measured)
     expected = ops.normalise(prior + log_likelihood(predicted, measured, var))
-    got = Pmf().update(state, obs, grid, None).log_weight
+    got = Pmf(field_variance="global").update(state, obs, grid, None).log_weight
     np.testing.assert_allclose(got, expected, rtol=RTOL, atol=RTOL * np.abs(expected).max())
+    # the default: each node's own field change over its cell (one node step per axis)
+    sides = (axes * spacing).T
+    local = local_field_reference(grid, xy, obs.heading, offsets, measured, var_b, sides)
+    expected = ops.normalise(prior + local)
+    got = Pmf().update(state, obs, grid, None).log_weight
+    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
     particles = np.array([500.0, 500.0]) + rng.normal(0.0, 200.0, (400, 2))
     weights = rng.normal(0.0, 1.0, 400)
     pf_state = PfState(particles, weights, cell=19.0)
@@ -155,23 +162,35 @@ def test_compiled_particle_move_and_resample_are_the_numpy_expressions():
 
 
 class _ReferencePmf(Pmf):
-    """The PMF update of the prediction-array path (predictions, field variance, sums)."""
+    """The PMF update of the prediction-array path (predictions, field variance, sums).
+
+    ``field_variance=local``: :func:`local_field_reference` at the nodes, their cells one
+    node step along each grid axis.
+    """
 
     def update(self, state, obs, grid, rng):
         if not np.isfinite(obs.values).any():
             return state
         xy = ops.node_positions(*state.frame, state.shape)
+        if self.field_variance == "local":
+            sides = (state.axes * state.spacing).T
+            args = (obs.heading, obs.offsets, obs.values, obs.noise_var, sides)
+            ll = local_field_reference(grid, xy, *args)
+            return replace(state, log_weight=ops.normalise(state.log_weight + ll))
         predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
         var = obs.noise_var + node_field_variance(predicted, obs.values)
         log_weight = ops.normalise(state.log_weight + log_likelihood(predicted, obs.values, var))
         return replace(state, log_weight=log_weight)
 
 
-def test_pmf_track_on_a_seeded_trial_is_the_reference_paths_to_1e9():
+@pytest.mark.parametrize("field_variance", ["local", "global"])
+def test_pmf_track_on_a_seeded_trial_is_the_reference_paths_to_1e9(field_variance):
     scen = geofix.load_scenario("builtin:azores_demo")
     grid = geofix.prepare_map(scen)
     problem = geofix.simulate_trial(scen, grid, 0).problem(grid)
-    fast = Pmf().match(problem, np.random.default_rng(0))
-    reference = _ReferencePmf().match(problem, np.random.default_rng(0))
+    fast = Pmf(field_variance=field_variance).match(problem, np.random.default_rng(0))
+    reference = _ReferencePmf(field_variance=field_variance).match(
+        problem, np.random.default_rng(0)
+    )
     np.testing.assert_allclose(fast.track, reference.track, rtol=1e-9)
     np.testing.assert_allclose(fast.covariance, reference.covariance, rtol=1e-9)

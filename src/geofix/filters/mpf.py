@@ -25,7 +25,8 @@ Systems 45(4):
 - **update**: the terrain / gravity likelihood of every particle's footprints, the same
   code as the point-mass and particle filters
   (:func:`~geofix.measurement.hypotheses_log_likelihood`, the likelihood flattening of
-  :func:`~geofix.filters.pf.spread_field_variance` while the set is sparse); with an
+  :func:`~geofix.filters.pf.spread_field_variance` while the set is sparse, or each
+  particle's own with ``field_variance=local``); with an
   aiding DVL, the velocity measurement ``v_INS - v_DVL = C x_l + noise`` updates every
   Kalman filter (shared gain) and weighs each particle by its marginal likelihood
   ``N(y; C m_i, C P C^T + R)``. ``v_INS`` is the indicated displacement over the step
@@ -76,14 +77,15 @@ from geofix.errors import ConfigError, MatchError
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.pf import (
     PfState,
+    check_field_variance,
     effective_sample_size,
     linear_weights,
     log_normalised,
-    spread_field_variance,
+    particle_log_likelihood,
     systematic_resample,
 )
 from geofix.maps.grid import Grid
-from geofix.measurement import hypotheses_log_likelihood, predict_measurements
+from geofix.measurement import predict_measurements
 from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
 from geofix.problem import MatchProblem
 
@@ -163,6 +165,9 @@ class Mpf(RecursiveFilter):
         Half-width of the stratified prior's box, prior standard deviations.
     discretisation_noise : bool
         Flatten the likelihood by the field's variance within one particle's share.
+    field_variance : str
+        ``global`` (one for the set, the default) or ``local`` (each particle's own), as
+        :class:`~geofix.filters.pf.Pf`'s.
     resample_threshold : float
         Resample when ``ESS < resample_threshold * M``.
     regularise : bool
@@ -182,6 +187,7 @@ class Mpf(RecursiveFilter):
     max_spacing_cells: float = 0.5
     extent_sigmas: float = 4.0
     discretisation_noise: bool = True
+    field_variance: str = "global"
     resample_threshold: float = 0.5
     regularise: bool = True
     use_dvl: bool = True
@@ -198,6 +204,7 @@ class Mpf(RecursiveFilter):
             raise ConfigError("mpf: max_spacing_cells and extent_sigmas must be positive")
         if not 0.0 <= self.resample_threshold <= 1.0:
             raise ConfigError("mpf: resample_threshold must be in [0, 1]")
+        check_field_variance("mpf", self.field_variance)
 
     # ------------------------------------------------------------------ protocol
     def match(self, problem: MatchProblem, rng: np.random.Generator):
@@ -280,14 +287,8 @@ class Mpf(RecursiveFilter):
             state, log_weight = self._dvl_update(state, state.dvl[obs.index], log_weight)
         if np.isfinite(obs.values).any():
             positions = state.positions
-            var = obs.noise_var
-            if self.discretisation_noise and state.spacing > 0:
-                view = PfState(positions, state.log_weight, state.cell, spacing=state.spacing)
-                var = var + spread_field_variance(grid, view, obs, rng)
-            ll = hypotheses_log_likelihood(
-                grid, positions, obs.heading, obs.offsets, obs.values, var, obs.bias_var
-            )
-            log_weight = log_weight + ll
+            view = PfState(positions, state.log_weight, state.cell, spacing=state.spacing)
+            log_weight = log_weight + particle_log_likelihood(self, grid, view, obs, rng)
             evaluations += positions.shape[0]
         return replace(state, log_weight=log_normalised(log_weight), evaluations=evaluations)
 

@@ -34,6 +34,9 @@ measures, the PMF's in particle form:
   within one particle's share of the area (a square of side ``h``, ``h^2`` the box area
   over ``M``), estimated from the field's differences over ``h`` at a subset of the
   particles (``discretisation_noise``, as in the PMF); it vanishes as the set concentrates.
+  ``field_variance=local`` gives every particle its own instead, the field's change over
+  its share at its own beams, as one offset common to the beams
+  (:func:`~geofix.measurement.local_field_log_likelihood`).
 
 The integrity flag is the PMF's: more than ``ambiguity_mass`` of the weight farther than
 ``ambiguity_radius_cells`` map cells from the weighted mean. All draws use the ``rng``
@@ -53,7 +56,11 @@ from geofix.errors import ConfigError, MatchError
 from geofix.filters import _particle_kernels as kernels
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
-from geofix.measurement import hypotheses_log_likelihood, predict_measurements
+from geofix.measurement import (
+    hypotheses_log_likelihood,
+    local_field_log_likelihood,
+    predict_measurements,
+)
 from geofix.problem import MatchProblem
 
 
@@ -120,6 +127,13 @@ class Pf(RecursiveFilter):
     discretisation_noise : bool
         Flatten the likelihood by the field's variance within one particle's share of the
         area (see the module text).
+    field_variance : str
+        ``global``: one field variance for every particle (:func:`spread_field_variance`);
+        ``local``: each particle's own field variation within its share, common to its
+        beams (:func:`~geofix.measurement.local_field_log_likelihood`). ``global`` stays
+        the default here: on ``source002_bank`` the particle filters' lost trials come
+        from resampling a two-mode posterior with a handful of particles in the true mode,
+        which the local variance does not prevent (it moves the loss to other trials).
     resample_threshold : float
         Resample when ``ESS < resample_threshold * M`` (0.5, the common choice).
     roughening : float
@@ -149,6 +163,7 @@ class Pf(RecursiveFilter):
     max_spacing_cells: float = 0.5
     extent_sigmas: float = 4.0
     discretisation_noise: bool = True
+    field_variance: str = "global"
     resample_threshold: float = 0.5
     roughening: float = 0.2
     ambiguity_radius_cells: float = 3.0
@@ -163,6 +178,7 @@ class Pf(RecursiveFilter):
             raise ConfigError("pf: max_spacing_cells and extent_sigmas must be positive")
         if not 0.0 <= self.resample_threshold <= 1.0 or self.roughening < 0:
             raise ConfigError("pf: resample_threshold must be in [0, 1], roughening >= 0")
+        check_field_variance("pf", self.field_variance)
 
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> PfState:
         """A stratified sample of ``N(indicated[0], sigma_position[0]^2 I)``.
@@ -220,12 +236,7 @@ class Pf(RecursiveFilter):
         """Add every particle's measurement log-likelihood (all beams at once)."""
         if not np.isfinite(obs.values).any():
             return state
-        var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
-        if self.discretisation_noise and state.spacing > 0:
-            var = var + spread_field_variance(grid, state, obs, rng)
-        ll = hypotheses_log_likelihood(
-            grid, state.particles, obs.heading, obs.offsets, obs.values, var, obs.bias_var
-        )
+        ll = particle_log_likelihood(self, grid, state, obs, rng)
         log_weight = state.log_weight + ll
         return replace(
             state,
@@ -312,6 +323,53 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count=Non
     cumulative[-1] = 1.0
     # searchsorted(cumulative, (u + arange(m)) / m, side="right") in one merge pass
     return kernels.systematic_indices(cumulative, float(u), m)
+
+
+FIELD_VARIANCES = ("local", "global")
+"""The discretisation-noise models of the filters (``field_variance``)."""
+
+
+LOCAL_MAX_SPACING_CELLS = 1.0
+"""Largest share side, map cells, at which ``field_variance=local`` is used; a coarser set
+falls back to the global variance. Within one map cell the bilinear field is linear along
+each axis, so its change over a side describes the field across the share; over several
+cells it does not (on rough terrain the beams' variations within a share ten cells wide
+are nearly independent, the global model's assumption, and the local slope misleads)."""
+
+
+def uses_local_field(filt, side: float, cell: float) -> bool:
+    """Whether ``filt`` takes the local field variance for a share of ``side`` metres.
+
+    ``field_variance=local`` and ``0 < side <= LOCAL_MAX_SPACING_CELLS * cell``.
+    """
+    return filt.field_variance == "local" and 0 < side <= LOCAL_MAX_SPACING_CELLS * cell
+
+
+def check_field_variance(name: str, value: str) -> None:
+    """Raise :class:`ConfigError` unless ``value`` is one of :data:`FIELD_VARIANCES`."""
+    if value not in FIELD_VARIANCES:
+        raise ConfigError(f"{name}: field_variance must be local or global, got {value!r}")
+
+
+def particle_log_likelihood(filt, grid: Grid, state: PfState, obs: Observation, rng):
+    """``(M,)`` measurement log-likelihood of ``state``'s particles, discretisation noise in.
+
+    ``filt`` gives ``discretisation_noise`` and ``field_variance``: none when off or the
+    set is dense (``spacing`` 0); each particle's own field variance within its square
+    share (``local``, while the share is at most :data:`LOCAL_MAX_SPACING_CELLS` map
+    cells across); or one variance for all (``global``, :func:`spread_field_variance`,
+    drawing from ``rng``).
+    """
+    var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
+    args = (obs.heading, obs.offsets, obs.values)
+    if filt.discretisation_noise and state.spacing > 0:
+        if uses_local_field(filt, state.spacing, state.cell):
+            sides = state.spacing * np.eye(2)
+            return local_field_log_likelihood(
+                grid, state.particles, *args, var, sides, obs.bias_var
+            )
+        var = var + spread_field_variance(grid, state, obs, rng)
+    return hypotheses_log_likelihood(grid, state.particles, *args, var, obs.bias_var)
 
 
 FIELD_VARIANCE_SUBSET = 2000

@@ -14,7 +14,12 @@ position hypotheses (Bergman 1999; Anonsen & Hallingstad for HUGIN). Each sample
   :func:`~geofix.measurement.predict_measurements` followed by
   :func:`~geofix.measurement.log_likelihood`). The variance is the sensor's plus the map's
   (``Observation.noise_var``) plus, by default, the spread of the field within one grid
-  node (``discretisation_noise``; see :class:`Pmf`).
+  node (``discretisation_noise``; see :class:`Pmf`): each node's own, the field's change
+  over its cell at its own beams, an offset common to them
+  (``field_variance=local``, :func:`~geofix.measurement.node_grid_local_log_likelihood`).
+  One global variance for every node (``field_variance=global``) let a node ~160 m off
+  the truth on rough terrain lose ~17 nats in one sample against a wrong mode on flat
+  ground, and the true mode fell below ``support_nats`` for good.
 
 Everything stays in log space (:mod:`geofix.filters._grid_ops`), so a likelihood however
 peaked gives no underflow and no NaN. The convolution is two direct 1-D passes (compiled
@@ -72,8 +77,15 @@ from geofix.filters import _grid_kernels as grid_kernels
 from geofix.filters import _grid_ops as ops
 from geofix.filters._pmf_errstate import conditional_motion, dvl_update, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
+from geofix.filters.pf import check_field_variance, uses_local_field
 from geofix.maps.grid import Grid
-from geofix.measurement import log_likelihood, node_grid_log_likelihood, predict_measurements
+from geofix.measurement import (
+    local_field_log_likelihood,
+    log_likelihood,
+    node_grid_local_log_likelihood,
+    node_grid_log_likelihood,
+    predict_measurements,
+)
 from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
 from geofix.problem import MatchProblem
 
@@ -187,6 +199,15 @@ class Pmf(RecursiveFilter):
         (``mean((delta_field between neighbouring nodes)^2) / 12`` summed over both grid
         axes): while the grid is coarse the likelihood is flattened to what the grid can
         resolve instead of being aliased; it vanishes as the grid refines.
+    field_variance : str
+        ``local`` (default): every node its own discretisation noise, the field's change
+        to the next node along each grid axis at its own beams, as one offset within the
+        cell common to the beams (:func:`~geofix.measurement.node_grid_local_log_likelihood`):
+        a node a fraction of a cell off the truth on rough terrain is not over-penalised,
+        nor a wrong one on flat ground over-rewarded; while the node spacing is at most
+        :data:`~geofix.filters.pf.LOCAL_MAX_SPACING_CELLS` map cells (a coarser grid
+        takes the global one). ``global``: one variance for the whole grid, the mean
+        over nodes and beams (the earlier model).
     ambiguity_radius_cells : float
         Radius around the fix, map cells, for the integrity flag.
     ambiguity_mass : float
@@ -232,6 +253,7 @@ class Pmf(RecursiveFilter):
     max_zoom: float = 4.0
     support_nats: float = 20.0
     discretisation_noise: bool = True
+    field_variance: str = "local"
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
     model: str = "rw"
@@ -248,6 +270,7 @@ class Pmf(RecursiveFilter):
             raise ConfigError("pmf: extent_sigmas and the spacings must be positive")
         if self.regrid_ratio <= 1 or self.max_zoom <= 1:
             raise ConfigError("pmf: regrid_ratio and max_zoom must exceed 1")
+        check_field_variance("pmf", self.field_variance)
 
     @property
     def needs_ins_model(self) -> bool:
@@ -301,6 +324,8 @@ class Pmf(RecursiveFilter):
             state = self._dvl_update(state, state.dvl[obs.index])
         if not np.isfinite(obs.values).any():
             return state
+        if self.discretisation_noise and uses_local_field(self, state.spacing.max(), state.cell):
+            return self._update_local(state, obs, grid)
         if obs.bias_var > 0 or grid.interpolation != "bilinear":
             return self._update_reference(state, obs, grid)
         # One compiled pass over nodes x beams (the reference path -- node_positions,
@@ -314,6 +339,35 @@ class Pmf(RecursiveFilter):
             obs.values,
             obs.noise_var,
             self.discretisation_noise,
+        )
+        log_weight = ops.normalise(state.log_weight + ll)
+        return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
+
+    def _update_local(self, state: PmfState, obs: Observation, grid: Grid) -> PmfState:
+        """The update with every node's own field variation within its cell.
+
+        One compiled pass over the nodes (one more row and column read for the last
+        nodes' differences); through the prediction arrays with a common offset or a map
+        read other than bilinear.
+        """
+        if obs.bias_var == 0 and grid.interpolation == "bilinear":
+            u, v = state.node_offsets
+            frame = (state.centre, state.axes, u, v)
+            args = (obs.heading, obs.offsets, obs.values, obs.noise_var)
+            ll = node_grid_local_log_likelihood(grid, frame, state.spacing, *args)
+            log_weight = ops.normalise(state.log_weight + ll)
+            return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
+        xy = ops.node_positions(*state.frame, state.shape)
+        sides = (state.axes * state.spacing).T  # rows: one node step along each grid axis
+        ll = local_field_log_likelihood(
+            grid,
+            xy,
+            obs.heading,
+            obs.offsets,
+            obs.values,
+            obs.noise_var,
+            sides,
+            obs.bias_var,
         )
         log_weight = ops.normalise(state.log_weight + ll)
         return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
