@@ -399,7 +399,7 @@ class GaSca:
             return self._evaluate_numpy(ctx, params)
         ctx.counter[0] += params.shape[0]
         head, tail = self._fitness_args(ctx)
-        return ga_costs(*head, np.ascontiguousarray(params, dtype=float), *tail)
+        return ga_costs(*head, np.ascontiguousarray(params, dtype=float), *tail)  # type: ignore[call-arg]
 
     def _fitness_args(self, ctx: _Context) -> tuple[_FitnessHead, _FitnessTail]:
         """Arguments of :func:`ga_costs` before and after ``params``."""
