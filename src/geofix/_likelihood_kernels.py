@@ -312,3 +312,30 @@ def node_ll_local(
     for i in range(out.shape[0]):
         for j in range(out.shape[1]):
             out[i, j] = _local_term_sum(p[i, j], p[i + 1, j], p[i, j + 1], measured, var, off_map)
+
+
+@numba.njit(cache=True, nogil=True)
+def shift_squares(values, origin, cell, px, py, bcol, brow, shift, out):  # pragma: no cover
+    """Sums and counts of the squared change of every beam's read under a shift.
+
+    ``out[0]``, ``out[1]``: sum of ``d^2`` and count of finite ``d`` for the shift
+    ``(shift, 0)``; ``out[2]``, ``out[3]`` the same for ``(0, shift)`` (metres). Each read
+    is that of :func:`geofix.measurement.predict_measurements` at the shifted position:
+    ``((x + s) - x0) / dx`` plus the beam's offset in cells, bilinear.
+    """
+    out[:] = 0.0
+    for i in range(px.shape[0]):
+        c = (px[i] - origin[0]) / cell[0]
+        r = (py[i] - origin[1]) / cell[1]
+        cx = ((px[i] + shift) - origin[0]) / cell[0]
+        ry = ((py[i] + shift) - origin[1]) / cell[1]
+        for j in range(bcol.shape[0]):
+            base = bilinear_at(values, c + bcol[j], r + brow[j])
+            dx = bilinear_at(values, cx + bcol[j], r + brow[j]) - base
+            dy = bilinear_at(values, c + bcol[j], ry + brow[j]) - base
+            if dx == dx:
+                out[0] += dx * dx
+                out[1] += 1.0
+            if dy == dy:
+                out[2] += dy * dy
+                out[3] += 1.0

@@ -365,6 +365,38 @@ def local_field_reference(
     return ll.reshape(positions.shape[:-1])
 
 
+def shift_field_variance(
+    grid: Grid, positions: np.ndarray, heading: float, offsets, measured, spacing: float
+) -> float:
+    """Field variance within a square of side ``spacing`` around each position, units^2.
+
+    ``(mean(d_x^2) + mean(d_y^2)) / 12`` over the measured beams of every position, with
+    ``d_x``, ``d_y`` the change of each beam's read when the vehicle moves by ``spacing``
+    metres along x and along y (finite changes only; 0 when none is). Bilinear maps in one
+    compiled pass, with no ``(positions, beams)`` array; other reads through
+    :func:`predict_measurements`. The sums are plain running sums (numpy's ``mean``
+    pairs its terms: the two differ in the last digits).
+    """
+    positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+    offsets = np.asarray(offsets, dtype=float)[np.isfinite(np.asarray(measured, dtype=float))]
+    if grid.interpolation != "bilinear":
+        read = [
+            predict_measurements(grid, positions + shift, heading, offsets)
+            for shift in ((0.0, 0.0), (spacing, 0.0), (0.0, spacing))
+        ]
+        squares = [(moved - read[0]) ** 2 for moved in read[1:]]
+        sums = [(float(np.nansum(q)), float(np.count_nonzero(~np.isnan(q)))) for q in squares]
+    else:
+        bcol, brow, _, _ = _measured_beams(grid, heading, offsets, np.zeros(len(offsets)), 0.0)
+        origin, cell = _origin_cell(grid)
+        out = np.zeros(4)
+        px = np.ascontiguousarray(positions[:, 0])
+        py = np.ascontiguousarray(positions[:, 1])
+        kernels.shift_squares(_map_values(grid), origin, cell, px, py, bcol, brow, spacing, out)
+        sums = [(out[0], out[1]), (out[2], out[3])]
+    return sum(total / count for total, count in sums if count > 0) / 12.0
+
+
 def node_grid_log_likelihood(
     grid: Grid,
     frame: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],

@@ -175,3 +175,33 @@ def test_field_variance_of_an_all_beam_ping_reads_fewer_particles_and_keeps_its_
     every = spread_field_variance(grid, state, obs, np.random.default_rng(0))
     assert abs(capped.mean() - every) < 3.0 * capped.std(ddof=1) / np.sqrt(capped.size)
     assert np.all(np.abs(capped / every - 1.0) < 0.05)
+
+
+def test_shift_field_variance_is_the_prediction_array_estimate_in_one_pass():
+    # The compiled pass reads what predict_measurements reads (off-map and missing beams
+    # included) and sums the squared changes: within 1e-12 of the numpy estimate; on a
+    # plane the change is the gradient times the shift, exactly (gx^2 + gy^2) s^2 / 12.
+    from geofix.maps import Grid
+    from geofix.measurement import predict_measurements, shift_field_variance
+
+    rng = np.random.default_rng(8)
+    grid = fractal_terrain((120, 120), 10.0, rng=rng, std=20.0)
+    positions = np.array([600.0, 600.0]) + rng.normal(0.0, 400.0, (300, 2))
+    offsets = np.column_stack([np.linspace(-200.0, 200.0, 9), np.zeros(9)])
+    measured = np.zeros(9)
+    measured[2] = np.nan
+    used = offsets[np.isfinite(measured)]
+    read = [
+        predict_measurements(grid, positions + shift, 0.4, used)
+        for shift in ((0.0, 0.0), (7.0, 0.0), (0.0, 7.0))
+    ]
+    expected = sum(np.nanmean((moved - read[0]) ** 2) for moved in read[1:]) / 12.0
+    got = shift_field_variance(grid, positions, 0.4, offsets, measured, 7.0)
+    assert np.isnan(read[0]).any()  # some beams off the map
+    assert got == pytest.approx(expected, rel=1e-12)
+    x, y = np.meshgrid(np.arange(50) * 10.0, np.arange(40) * 10.0)
+    plane = Grid(0.3 * x - 0.2 * y, 0.0, 0.0, 10.0, 10.0)
+    inside = np.array([[200.0, 150.0], [260.0, 210.0]])
+    assert shift_field_variance(plane, inside, 0.0, offsets[3:6], measured[3:6], 5.0) == (
+        pytest.approx((0.3**2 + 0.2**2) * 25.0 / 12.0, rel=1e-12)
+    )

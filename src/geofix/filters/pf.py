@@ -60,6 +60,7 @@ from geofix.measurement import (
     hypotheses_log_likelihood,
     local_field_log_likelihood,
     predict_measurements,
+    shift_field_variance,
 )
 from geofix.problem import MatchProblem
 
@@ -406,14 +407,6 @@ def spread_field_variance(grid: Grid, state: PfState, obs: Observation, rng) -> 
     use = np.isfinite(obs.values)
     m = state.particles.shape[0]
     pick = rng.choice(m, field_variance_particles(m, int(use.sum())), replace=False)
-    base = state.particles[pick]
-    read = [
-        predict_measurements(grid, base + shift, obs.heading, np.asarray(obs.offsets)[use])
-        for shift in ((0.0, 0.0), (state.spacing, 0.0), (0.0, state.spacing))
-    ]
-    total = 0.0
-    for moved in read[1:]:
-        d = moved - read[0]
-        d = d[np.isfinite(d)]
-        total += float(np.mean(d**2)) if d.size else 0.0
-    return total / 12.0
+    return shift_field_variance(
+        grid, state.particles[pick], obs.heading, obs.offsets, obs.values, state.spacing
+    )
