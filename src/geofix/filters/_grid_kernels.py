@@ -107,23 +107,33 @@ def normalised(log_weight):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True)
 def _correlate_axis(p, kernel, axis):  # pragma: no cover - compiled
-    """``scipy.ndimage.correlate1d(p, kernel, axis, mode="constant")`` of a 2-D array."""
+    """``scipy.ndimage.correlate1d(p, kernel, axis, mode="constant")`` of a 2-D array.
+
+    Each output sums ``kernel[t] * p[.. + t - half ..]`` over the taps that land inside
+    the array, in increasing ``t`` (taps outside add nothing, so they are not visited):
+    along axis 0 a tap at a time over whole contiguous rows, along axis 1 a contiguous
+    window per element; the same additions in the same order either way.
+    """
     n0, n1 = p.shape
-    half = kernel.size // 2
+    size = kernel.size
+    half = size // 2
     out = np.zeros_like(p)
-    for i in range(n0):
-        for j in range(n1):
-            acc = 0.0
-            for t in range(kernel.size):
-                if axis == 0:
-                    k = i + t - half
-                    if 0 <= k < n0:
-                        acc += kernel[t] * p[k, j]
-                else:
-                    k = j + t - half
-                    if 0 <= k < n1:
-                        acc += kernel[t] * p[i, k]
-            out[i, j] = acc
+    if axis == 0:
+        for i in range(n0):
+            for t in range(max(0, half - i), min(size, n0 + half - i)):
+                w = kernel[t]
+                src = p[i + t - half]
+                dst = out[i]
+                for j in range(n1):
+                    dst[j] += w * src[j]
+    else:
+        for i in range(n0):
+            row = p[i]
+            for j in range(n1):
+                acc = 0.0
+                for t in range(max(0, half - j), min(size, n1 + half - j)):
+                    acc += kernel[t] * row[j + t - half]
+                out[i, j] = acc
     return out
 
 
