@@ -79,9 +79,12 @@ def _beam_sum(values, col, row, bcol, brow, measured, var, off_map, inside, buff
 
 
 @numba.njit(cache=True, nogil=True)
-def hypotheses_ll(values, origin, cell, px, py, bcol, brow, measured, var, off_map, out):
-    """``out[i]``: log-likelihood from position ``(px[i], py[i])``, metres."""
-    n = px.shape[0]  # pragma: no cover - compiled
+def _hypothesis_cells(values, origin, cell, px, py, bcol, brow):  # pragma: no cover
+    """``(cols, rows, inside)``: fractional map cells of positions ``(px, py)``, metres.
+
+    ``inside``: every footprint of every position lies inside the stencil range.
+    """
+    n = px.shape[0]
     cols = np.empty(n)
     rows = np.empty(n)
     bounds = np.array([np.inf, -np.inf, np.inf, -np.inf])
@@ -93,9 +96,15 @@ def hypotheses_ll(values, origin, cell, px, py, bcol, brow, measured, var, off_m
         rows[i] = r
         finite = finite and c == c and r == r
         _widen(bounds, c, r)
-    inside = finite and _all_inside(values, bounds, bcol, brow)
+    return cols, rows, finite and _all_inside(values, bounds, bcol, brow)
+
+
+@numba.njit(cache=True, nogil=True)
+def hypotheses_ll(values, origin, cell, px, py, bcol, brow, measured, var, off_map, out):
+    """``out[i]``: log-likelihood from position ``(px[i], py[i])``, metres."""
+    cols, rows, inside = _hypothesis_cells(values, origin, cell, px, py, bcol, brow)
     buffer = np.empty(measured.shape[0])
-    for i in range(n):
+    for i in range(px.shape[0]):  # pragma: no cover - compiled
         c, r = cols[i], rows[i]
         out[i] = _beam_sum(values, c, r, bcol, brow, measured, var, off_map, inside, buffer)
 
@@ -267,24 +276,12 @@ def hypotheses_ll_local(
     ``(dcol, drow)``); the field is read at the hypothesis and at its position moved by
     each side (checked reads there), the likelihood of :func:`_local_term_sum`.
     """
-    n = px.shape[0]
     b = measured.shape[0]
-    cols = np.empty(n)
-    rows = np.empty(n)
-    bounds = np.array([np.inf, -np.inf, np.inf, -np.inf])
-    finite = True
-    for i in range(n):
-        c = (px[i] - origin[0]) / cell[0]
-        r = (py[i] - origin[1]) / cell[1]
-        cols[i] = c
-        rows[i] = r
-        finite = finite and c == c and r == r
-        _widen(bounds, c, r)
-    inside = finite and _all_inside(values, bounds, bcol, brow)
+    cols, rows, inside = _hypothesis_cells(values, origin, cell, px, py, bcol, brow)
     f0 = np.empty(b)
     f1 = np.empty(b)
     f2 = np.empty(b)
-    for i in range(n):
+    for i in range(px.shape[0]):
         c, r = cols[i], rows[i]
         for k in range(b):
             ck = c + bcol[k]

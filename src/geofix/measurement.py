@@ -200,8 +200,7 @@ def hypotheses_log_likelihood(
         predicted = predict_measurements(grid, positions, heading, offsets)
         return log_likelihood(predicted, measured, noise_var, bias_var)
     bcol, brow, y, var = _measured_beams(grid, heading, offsets, measured, noise_var)
-    px = np.ascontiguousarray(positions[..., 0].ravel())
-    py = np.ascontiguousarray(positions[..., 1].ravel())
+    px, py = _flat_xy(positions)
     out = np.empty(px.size)
     origin, cell = _origin_cell(grid)
     kernels.hypotheses_ll(
@@ -277,8 +276,7 @@ def local_field_log_likelihood(
             grid, positions, heading, offsets, measured, noise_var, sides, bias_var
         )
     bcol, brow, y, var = _measured_beams(grid, heading, offsets, measured, noise_var)
-    px = np.ascontiguousarray(positions[..., 0].ravel())
-    py = np.ascontiguousarray(positions[..., 1].ravel())
+    px, py = _flat_xy(positions)
     out = np.empty(px.size)
     origin, cell = _origin_cell(grid)
     shifts = np.ascontiguousarray(sides / cell)  # (dcol, drow) per side
@@ -387,11 +385,10 @@ def shift_field_variance(
         squares = [(moved - read[0]) ** 2 for moved in read[1:]]
         sums = [(float(np.nansum(q)), float(np.count_nonzero(~np.isnan(q)))) for q in squares]
     else:
-        bcol, brow, _, _ = _measured_beams(grid, heading, offsets, np.zeros(len(offsets)), 0.0)
+        bcol, brow = _beam_cells(grid, heading, offsets)
         origin, cell = _origin_cell(grid)
         out = np.zeros(4)
-        px = np.ascontiguousarray(positions[:, 0])
-        py = np.ascontiguousarray(positions[:, 1])
+        px, py = _flat_xy(positions)
         kernels.shift_squares(_map_values(grid), origin, cell, px, py, bcol, brow, spacing, out)
         sums = [(out[0], out[1]), (out[2], out[3])]
     return sum(total / count for total, count in sums if count > 0) / 12.0
@@ -459,16 +456,25 @@ def _measured_beams(grid: Grid, heading: float, offsets, measured, noise_var) ->
 
     The beam offsets are in map cells, as :func:`predict_measurements` adds them.
     """
-    offsets = np.asarray(offsets, dtype=float)
     measured = np.asarray(measured, dtype=float)
-    ox, oy = footprint_xy(np.zeros(2), np.asarray(heading, dtype=float), offsets)
+    bcol, brow = _beam_cells(grid, heading, offsets)
     use = ~np.isnan(measured)
     var = np.broadcast_to(np.asarray(noise_var, dtype=float), measured.shape)
+    return bcol[use], brow[use], np.ascontiguousarray(measured[use]), np.ascontiguousarray(var[use])
+
+
+def _beam_cells(grid: Grid, heading: float, offsets) -> tuple[np.ndarray, np.ndarray]:
+    """``(beam_col, beam_row)``: every beam's offset in map cells, contiguous float64."""
+    offsets = np.asarray(offsets, dtype=float)
+    ox, oy = footprint_xy(np.zeros(2), np.asarray(heading, dtype=float), offsets)
+    return np.ascontiguousarray(ox / grid.dx), np.ascontiguousarray(oy / grid.dy)
+
+
+def _flat_xy(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Contiguous ``(x, y)`` of ``(..., 2)`` positions, flattened, metres."""
     return (
-        np.ascontiguousarray((ox / grid.dx)[use]),
-        np.ascontiguousarray((oy / grid.dy)[use]),
-        np.ascontiguousarray(measured[use]),
-        np.ascontiguousarray(var[use]),
+        np.ascontiguousarray(positions[..., 0].ravel()),
+        np.ascontiguousarray(positions[..., 1].ravel()),
     )
 
 
