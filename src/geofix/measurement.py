@@ -7,16 +7,20 @@ matcher (:func:`predict_track`, :func:`residuals`), every recursive filter
 (:func:`predict_measurements` on many hypotheses, :func:`log_likelihood`,
 :func:`linearise`) and every bound (:func:`beam_gradients`, :func:`sample_information`).
 
-- Prediction: the bilinear (or nearest-node) map read at every footprint
-  (:func:`geofix.problem.footprint_xy`), NaN off the map and on no-data.
+- Prediction: the map read at every footprint (:func:`geofix.problem.footprint_xy`),
+  NaN off the map and on no-data: the grid's ``interpolation`` for the recursive filters
+  (:func:`predict_measurements`), bilinear unless asked otherwise along a track
+  (:func:`predict_track`).
 - Likelihood: independent Gaussian beams of variance sensor noise plus map error.
 - Linearisation (SITAN): slopes of a least-squares plane fitted over a patch the size of
-  the position uncertainty (stochastic terrain linearisation).
+  the position uncertainty (stochastic terrain linearisation), the patch read with the
+  grid's ``interpolation`` like the prediction.
 - Sensor lag: :func:`lag_compensated` undoes a gravimeter's declared first-order lag
   (``problem.lag_s``) causally, so that the recursive filters weigh the readings the
   model above describes.
 - Information: the Fisher information of a sample about the vehicle position,
-  ``sum_b g g^T / var_b`` with ``g`` the map gradient at each footprint.
+  ``sum_b g g^T / var_b`` with ``g`` the map gradient at each footprint (the exact
+  gradient of the grid's interpolant, or of the read named).
 """
 
 from __future__ import annotations
@@ -557,7 +561,10 @@ def linearise(grid: Grid, position, heading: float, offsets, half_width_m: float
 
     A least-squares plane is fitted to the map over a square patch of half-width
     ``half_width_m`` (the position uncertainty, metres; at least one cell) around each
-    footprint; its slopes form the rows of the measurement Jacobian.
+    footprint; its slopes form the rows of the measurement Jacobian. The patch and the
+    predicted values are read with the grid's ``interpolation``
+    (:func:`geofix.maps.terrain.plane_fit`), so the filter linearises the interpolant it
+    predicts with.
 
     ``position`` is ``(2,)`` (one estimate: arrays ``(b,)`` / ``(b, 2)``) or ``(..., 2)``
     (several estimates at once, same heading and patch: arrays ``(..., b)`` / ``(..., b, 2)``).
@@ -597,8 +604,10 @@ def gradient_grids(grid: Grid) -> tuple[Grid, Grid]:
     return grid.with_values(gx), grid.with_values(gy)
 
 
-def beam_gradients(grid: Grid, track, heading, offsets) -> tuple[np.ndarray, np.ndarray]:
-    """Exact gradient of the bilinear map read at every beam footprint of a track.
+def beam_gradients(
+    grid: Grid, track, heading, offsets, method: str | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact gradient of the map read at every beam footprint of a track.
 
     Parameters
     ----------
@@ -610,6 +619,9 @@ def beam_gradients(grid: Grid, track, heading, offsets) -> tuple[np.ndarray, np.
         ``(n,)`` headings, radians clockwise from north.
     offsets : array_like
         ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres.
+    method : {"bilinear", "bicubic"}, optional
+        The read whose gradient is taken (default: the grid's ``interpolation``,
+        :meth:`Grid.sample_gradient`).
 
     Returns
     -------
@@ -619,7 +631,7 @@ def beam_gradients(grid: Grid, track, heading, offsets) -> tuple[np.ndarray, np.
     x, y = footprint_xy(
         np.asarray(track, float), np.asarray(heading, float), np.asarray(offsets, float)
     )
-    _, gx, gy = grid.sample_gradient(x, y)
+    _, gx, gy = grid.sample_gradient(x, y, method)
     return np.nan_to_num(gx, nan=0.0), np.nan_to_num(gy, nan=0.0)
 
 

@@ -264,3 +264,36 @@ def test_error_state_bound_on_a_plane_is_a_kalman_filter_covariance():
     pos = es.position_cov(bound[-1])
     along = np.array([slope[1], -slope[0]]) / np.hypot(*slope)
     assert along @ pos @ along > 10 * (slope @ pos @ slope) / (slope @ slope)
+
+
+def test_bound_differentiates_the_read_the_simulator_draws_the_truth_with():
+    from dataclasses import replace
+
+    from geofix.evaluate.crlb import trial_information
+    from geofix.problem import footprint_xy
+    from geofix.sensors.spec import SensorSpec
+    from geofix.sim.sensing import TRUTH_READ, measure
+
+    cell = 10.0
+    c = cell * (np.arange(101) - 50)
+    values = 30.0 * np.sin(c[None, :] / 61.0) * np.cos(c[:, None] / 47.0)
+    linear = Grid(values, x0=-500.0, y0=-500.0, dx=cell, dy=cell)
+    cubic = replace(linear, interpolation="bicubic")
+    trial = _trial_on(linear, beams=3)
+    # the simulator's clean readings are the TRUTH_READ (bilinear) read on either grid
+    spec = SensorSpec(type="singlebeam")  # noiseless
+    rng = np.random.default_rng(0)
+    clean = measure(cubic, trial.truth, trial.true_heading, trial.offsets, spec, rng)
+    x, y = footprint_xy(trial.truth, trial.true_heading, trial.offsets)
+    assert TRUTH_READ == "bilinear"
+    np.testing.assert_array_equal(clean, linear.sample(x, y))
+    assert np.abs(clean - cubic.sample(x, y)).max() > 1e-3
+    # beam_gradients follows the grid's interpolation ...
+    gx, gy = beam_gradients(cubic, trial.truth, trial.true_heading, trial.offsets)
+    _, cx, cy = cubic.sample_gradient(x, y, method="bicubic")
+    np.testing.assert_array_equal(gx, cx)
+    np.testing.assert_array_equal(gy, cy)
+    bx, _ = beam_gradients(linear, trial.truth, trial.true_heading, trial.offsets)
+    assert np.abs(bx - gx).max() > 1e-3
+    # ... while the bound takes the simulator's read on either grid
+    np.testing.assert_array_equal(trial_information(trial, cubic), trial_information(trial, linear))

@@ -147,3 +147,31 @@ def test_pmf_weighs_every_beam_by_its_own_noise():
     # the uniform-noise posterior is far narrower along the gradient: the test can tell
     along = SLOPE / np.linalg.norm(SLOPE)
     assert along @ wrong_covs[-1] @ along < 0.6 * (along @ covs[-1] @ along)
+
+
+def test_linearisation_reads_the_grid_interpolation():
+    from dataclasses import replace
+
+    from geofix.maps.grid import Grid
+    from geofix.measurement import linearise
+
+    yy, xx = np.mgrid[0:60, 0:70]
+    x, y = 8.0 * xx, 12.0 * yy
+
+    def surface(x, y):
+        return 5.0 + 0.03 * x - 0.02 * y + 1e-4 * x * x - 2e-4 * x * y + 3e-4 * y * y
+
+    linear = Grid(surface(x, y), 0.0, 0.0, 8.0, 12.0)
+    cubic = replace(linear, interpolation="bicubic")
+    position, heading = np.array([263.7, 351.2]), np.radians(35.0)
+    fx, fy = footprint_xy(position, heading, OFFSETS)
+    lin = linearise(cubic, position, heading, OFFSETS, half_width_m=40.0)
+    # bicubic reads a quadratic exactly, so does the prediction; on the symmetric patch the
+    # plane's slopes are the quadratic's gradient at each footprint
+    np.testing.assert_allclose(lin.predicted, surface(fx, fy), atol=1e-9)
+    np.testing.assert_allclose(lin.slopes[:, 0], 0.03 + 2e-4 * fx - 2e-4 * fy, atol=1e-9)
+    np.testing.assert_allclose(lin.slopes[:, 1], -0.02 - 2e-4 * fx + 6e-4 * fy, atol=1e-9)
+    # the bilinear grid's linearisation reads its own (inexact) interpolant
+    bilinear = linearise(linear, position, heading, OFFSETS, half_width_m=40.0)
+    np.testing.assert_array_equal(bilinear.predicted, linear.sample(fx, fy))
+    assert np.abs(bilinear.predicted - surface(fx, fy)).max() > 1e-3

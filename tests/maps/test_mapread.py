@@ -192,3 +192,151 @@ def test_bicubic_nan_rules_are_the_bilinear_ones():
     assert got[0, 0] == pytest.approx(holed.sample(28.0, 29.0, method="bicubic"))
     with pytest.raises(MapError, match="interpolation"):
         replace(grid, interpolation="spline")
+
+
+# ----------------------------------------------------------------------------- bicubic gradient
+def _wavy_grid(**changes):
+    """A sin/cos field on a 40 x 30 grid with unequal cells (7 m by 11 m)."""
+    ny, nx, dx, dy = 30, 40, 7.0, 11.0
+    yy, xx = np.mgrid[0:ny, 0:nx]
+    x, y = 100.0 + dx * xx, -40.0 + dy * yy
+    values = 20.0 * np.sin(x / 37.0) * np.cos(y / 53.0) + 5.0 * np.cos(x / 23.0 + y / 31.0)
+    return Grid(values, 100.0, -40.0, dx, dy, **changes)
+
+
+def _cells_with_edges(grid, rng, n=600):
+    """Fractional cells away from cell edges; a quarter in the first/last column or row."""
+    ny, nx = grid.shape
+    col = rng.integers(0, nx - 1, n) + rng.uniform(0.05, 0.95, n)
+    row = rng.integers(0, ny - 1, n) + rng.uniform(0.05, 0.95, n)
+    q = n // 8
+    col[:q] = rng.uniform(0.05, 0.95, q)  # first column of cells
+    col[q : 2 * q] = nx - 2 + rng.uniform(0.05, 0.95, q)  # last one
+    row[2 * q : 3 * q] = rng.uniform(0.05, 0.95, q)
+    row[3 * q : 4 * q] = ny - 2 + rng.uniform(0.05, 0.95, q)
+    return col, row
+
+
+def test_bicubic_gradient_matches_finite_differences_of_the_bicubic_read(rng):
+    grid = _wavy_grid()
+    col, row = _cells_with_edges(grid, rng)
+    x, y = grid.cell_to_xy(col, row)
+    value, gx, gy = grid.sample_gradient(x, y, method="bicubic")
+    # the value is the bicubic read itself, bit for bit
+    np.testing.assert_array_equal(value, grid.sample(x, y, method="bicubic"))
+    h = 1e-4
+    fx = (grid.sample(x + h, y, method="bicubic") - grid.sample(x - h, y, method="bicubic")) / (
+        2 * h
+    )
+    fy = (grid.sample(x, y + h, method="bicubic") - grid.sample(x, y - h, method="bicubic")) / (
+        2 * h
+    )
+    assert np.isfinite(gx).all() and np.isfinite(gy).all()
+    np.testing.assert_allclose(gx, fx, rtol=1e-6, atol=1e-6 * np.abs(fx).max())
+    np.testing.assert_allclose(gy, fy, rtol=1e-6, atol=1e-6 * np.abs(fy).max())
+    # the edge cells (extrapolated stencil) are checked too
+    ny, nx = grid.shape
+    edge = (col < 1) | (col > nx - 2) | (row < 1) | (row > ny - 2)
+    assert edge.sum() >= 300
+    # and it is not the bilinear slope
+    _, bx, by = grid.sample_gradient(x, y, method="bilinear")
+    assert np.abs(bx - gx).max() > 1e-2 and np.abs(by - gy).max() > 1e-2
+
+
+def test_bicubic_gradient_is_continuous_across_cell_edges():
+    grid = _wavy_grid()
+    ny, nx = grid.shape
+    # every interior column and row edge (the first and last included: extrapolated on one
+    # side of them)
+    col = np.arange(1, nx - 1, dtype=float)
+    row = np.full(col.shape, 7.3)
+    eps = 1e-9
+    below = grid.sample_gradient(*grid.cell_to_xy(col - eps, row), method="bicubic")
+    above = grid.sample_gradient(*grid.cell_to_xy(col + eps, row), method="bicubic")
+    np.testing.assert_allclose(below[1], above[1], rtol=0, atol=1e-7)
+    row = np.arange(1, ny - 1, dtype=float)
+    col = np.full(row.shape, 11.6)
+    below = grid.sample_gradient(*grid.cell_to_xy(col, row - eps), method="bicubic")
+    above = grid.sample_gradient(*grid.cell_to_xy(col, row + eps), method="bicubic")
+    np.testing.assert_allclose(below[2], above[2], rtol=0, atol=1e-7)
+    # the bilinear slope jumps across the column edges
+    col, row = np.arange(1, nx - 1, dtype=float), np.full(nx - 2, 7.3)
+    lin_below = grid.sample_gradient(*grid.cell_to_xy(col - eps, row), method="bilinear")
+    lin_above = grid.sample_gradient(*grid.cell_to_xy(col + eps, row), method="bilinear")
+    assert np.abs(lin_below[1] - lin_above[1]).max() > 1e-2
+
+
+def test_bicubic_gradient_nan_rules():
+    grid, _ = _quadratic_grid()
+    values = grid.values.copy()
+    values[5, 6] = np.nan  # the cell centred on (60, 50)
+    holed = grid.with_values(values)
+    # (45, 35): the 4 x 4 stencil holds the no-data cell, the bilinear 2 x 2 does not
+    value, gx, gy = holed.sample_gradient(np.array([45.0]), np.array([35.0]), method="bicubic")
+    assert np.isnan(value[0]) and np.isnan(gx[0]) and np.isnan(gy[0])
+    assert np.isfinite(holed.sample_gradient(45.0, 35.0, method="bilinear")).all()
+    # off the grid or at a NaN position: all NaN
+    x = np.array([-0.1, 140.1, 60.0, 60.0, np.nan])
+    y = np.array([50.0, 50.0, -1.0, 110.5, 3.0])
+    for part in holed.sample_gradient(x, y, method="bicubic"):
+        assert np.isnan(part).all()
+    # away from the hole every part is finite
+    assert np.isfinite(holed.sample_gradient(25.0, 25.0, method="bicubic")).all()
+
+
+def test_bicubic_gradient_of_a_quadratic_is_exact_a_cubic_is_not(rng):
+    ny, nx, dx, dy = 14, 17, 6.0, 9.0
+    yy, xx = np.mgrid[0:ny, 0:nx]
+    X, Y = dx * xx, dy * yy
+    x, y = rng.uniform(0.0, dx * (nx - 1), 800), rng.uniform(0.0, dy * (ny - 1), 800)
+    # z = 2 + 0.3 x - 0.2 y + 0.004 x^2 - 0.003 x y + 0.005 y^2 (edge cells included)
+    quad = 2.0 + 0.3 * X - 0.2 * Y + 0.004 * X**2 - 0.003 * X * Y + 0.005 * Y**2
+    grid = Grid(quad, 0.0, 0.0, dx, dy)
+    value, gx, gy = grid.sample_gradient(x, y, method="bicubic")
+    np.testing.assert_allclose(
+        value, 2.0 + 0.3 * x - 0.2 * y + 0.004 * x**2 - 0.003 * x * y + 0.005 * y**2, atol=1e-9
+    )
+    np.testing.assert_allclose(gx, 0.3 + 0.008 * x - 0.003 * y, atol=1e-9)
+    np.testing.assert_allclose(gy, -0.2 - 0.003 * x + 0.010 * y, atol=1e-9)
+    # Keys (a = -0.5) stops at degree two along each axis: a cubic's gradient is only
+    # approximated
+    cubic = grid.with_values(quad + 1e-4 * X**3 + 2e-4 * Y**3)
+    _, cx, cy = cubic.sample_gradient(x, y, method="bicubic")
+    true_cx = 0.3 + 0.008 * x - 0.003 * y + 3e-4 * x**2
+    true_cy = -0.2 - 0.003 * x + 0.010 * y + 6e-4 * y**2
+    assert np.abs(cx - true_cx).max() > 1e-4 and np.abs(cy - true_cy).max() > 1e-4
+    assert np.abs(cx - true_cx).max() < 0.1 * np.abs(true_cx).max()
+
+
+def test_bicubic_gradient_on_a_narrow_grid_is_the_bilinear_one(rng):
+    values = rng.normal(0.0, 3.0, (2, 9))  # two rows: read bilinear, as bicubic_at does
+    x, y = rng.uniform(0.0, 8.0, 50), rng.uniform(0.0, 1.0, 50)
+    cubic = mapread.gradient_xy(values, 0.0, 0.0, 1.0, 1.0, x, y, method="bicubic")
+    linear = mapread.gradient_xy(values, 0.0, 0.0, 1.0, 1.0, x, y)
+    for a, b in zip(cubic, linear, strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(
+        cubic[0], mapread.read_xy(values, 0.0, 0.0, 1.0, 1.0, x, y, method="bicubic")
+    )
+
+
+def test_sample_gradient_follows_the_grid_interpolation_and_rejects_other_methods():
+    from dataclasses import replace
+
+    grid = _wavy_grid()
+    x, y = np.array([150.0, 300.0]), np.array([0.0, 200.0])
+    cubic = replace(grid, interpolation="bicubic")
+    for got, want in zip(
+        cubic.sample_gradient(x, y), grid.sample_gradient(x, y, method="bicubic"), strict=True
+    ):
+        np.testing.assert_array_equal(got, want)
+    for got, want in zip(
+        grid.sample_gradient(x, y),
+        mapread.gradient_xy(grid.values, grid.x0, grid.y0, grid.dx, grid.dy, x, y),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(got, want)
+    with pytest.raises(ValueError, match="unknown gradient method 'nearest'"):
+        grid.sample_gradient(x, y, method="nearest")
+    with pytest.raises(ValueError, match="unknown gradient method"):
+        mapread.gradient_xy(grid.values, 0.0, 0.0, 1.0, 1.0, x, y, method="cubic")

@@ -41,9 +41,11 @@ read along the *true* track (the bound is a property of the terrain actually cro
   It is not the limit of the simulated INS (its errors are far from white), and a
   filter can end below it.
 
-Map gradients are the exact gradient of the bilinear interpolant that the simulator and
-the filters read (:meth:`geofix.maps.grid.Grid.sample_gradient`) at every true
-footprint; a gradient that cannot be formed (next to no-data) carries no information.
+Map gradients are the exact gradient of the interpolant the simulator reads the truth
+with (:data:`geofix.sim.sensing.TRUTH_READ`, bilinear, whatever the grid's
+``interpolation``: :meth:`geofix.maps.grid.Grid.sample_gradient`) at every true
+footprint, so the bound describes the readings actually drawn; a gradient that cannot be
+formed (next to no-data) carries no information.
 The heading error's rotation of off-nadir footprints is ignored (the bound is then
 slightly optimistic).
 
@@ -66,6 +68,7 @@ import numpy as np
 
 from geofix.maps.grid import Grid
 from geofix.measurement import beam_gradients, inverse_trace, sample_information
+from geofix.sim.sensing import TRUTH_READ
 
 #: Smallest per-step process variance, m^2 (the same floor as the filters' motion model).
 MIN_PROCESS_VAR = 1e-6
@@ -210,12 +213,13 @@ def trial_information(trial, grid: Grid, beam_var=None) -> np.ndarray:
     """Per-sample information along a trial's true track, 1/m^2, shape ``(n, 2, 2)``.
 
     ``beam_var`` (field units squared, scalar or ``(b,)``) defaults to
-    :func:`trial_beam_variance` (the trial's per-beam noise plus map error).
+    :func:`trial_beam_variance` (the trial's per-beam noise plus map error). The
+    gradients are those of the simulator's read (:data:`geofix.sim.sensing.TRUTH_READ`).
     """
     if beam_var is None:
         beam_var = trial_beam_variance(trial)
     beam_var = np.maximum(np.asarray(beam_var, float), 1e-12)
-    gx, gy = beam_gradients(grid, trial.truth, trial.true_heading, trial.offsets)
+    gx, gy = beam_gradients(grid, trial.truth, trial.true_heading, trial.offsets, TRUTH_READ)
     return sample_information(gx, gy, beam_var, valid=np.isfinite(trial.measured))
 
 

@@ -35,9 +35,9 @@ class Grid:
     meta : dict
         Free-form provenance (source file, projection, region), never used by numerics.
     interpolation : {"bilinear", "bicubic"}
-        The read the map's users take by default (:meth:`sample` without a method, the
-        measurement model of :func:`geofix.measurement.predict_measurements`); gradients
-        are always those of the bilinear interpolant.
+        The read the map's users take by default (:meth:`sample` and
+        :meth:`sample_gradient` without a method, the measurement model of
+        :func:`geofix.measurement.predict_measurements`).
     """
 
     values: np.ndarray
@@ -131,22 +131,27 @@ class Grid:
         method = self.interpolation if method is None else method
         return mapread.read_xy(self.values, self.x0, self.y0, self.dx, self.dy, x, y, method)
 
-    def sample_gradient(self, x, y) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Bilinear value and gradient of the field at metric positions.
+    def sample_gradient(
+        self, x, y, method: str | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Value and exact gradient of the field's interpolant at metric positions.
 
         Parameters
         ----------
         x, y : array_like
             Eastings and northings, metres; any (broadcastable) shape.
+        method : {"bilinear", "bicubic"}, optional
+            Interpolant (default: the grid's ``interpolation``, as :meth:`sample`).
 
         Returns
         -------
         tuple of numpy.ndarray
-            ``(value, d/dx, d/dy)`` in field units and field units per metre, the gradient
-            of the bilinear interpolant (:mod:`geofix.maps.mapread`); NaN off the map and
-            wherever a stencil cell is NaN.
+            ``(value, d/dx, d/dy)``: the value of :meth:`sample` with the same method, field
+            units, and the gradient of that interpolant (:mod:`geofix.maps.mapread`),
+            field units per metre; all NaN off the map and wherever a stencil cell is NaN.
         """
-        return mapread.gradient_xy(self.values, self.x0, self.y0, self.dx, self.dy, x, y)
+        method = self.interpolation if method is None else method
+        return mapread.gradient_xy(self.values, self.x0, self.y0, self.dx, self.dy, x, y, method)
 
     # ------------------------------------------------------------------ derived grids
     def with_values(self, values: np.ndarray, **changes) -> Grid:

@@ -1,4 +1,4 @@
-"""The one compiled map read: bilinear (value and gradient), bicubic and nearest-node look-ups.
+"""The one compiled map read: bilinear and bicubic (value and gradient), nearest-node look-ups.
 
 Every reader of a :class:`~geofix.maps.grid.Grid` -- ``Grid.sample``, the sensors, the
 matchers, the filters' measurement model -- goes through these numba kernels, so the
@@ -25,6 +25,11 @@ map is interpolated one way everywhere. Conventions (those of ``Grid.sample``):
   NaN when any of the stencil's cells is no-data. Where the stencil reaches one cell past
   the edge, that cell is Keys' boundary extrapolation ``f(-1) = 3 f(0) - 3 f(1) + f(2)``
   (exact for quadratics); a grid of fewer than three cells along an axis is read bilinear.
+  Its **gradient** (:func:`gradient_xy` with ``method="bicubic"``) is the exact
+  derivative of that interpolant (C1 across cell edges): along one axis the derivative
+  weights ``(-3 t^2 + 4 t - 1) / 2``, ``(9 t^2 - 10 t) / 2``, ``(-9 t^2 + 8 t + 1) / 2``,
+  ``(3 t^2 - 2 t) / 2``, along the other the weights above, on the same stencil with the
+  same extrapolation and NaN rules, divided by ``dx`` (``dy``).
 
 The scalar kernels :func:`bilinear_at`, :func:`stencil` and :func:`nearest_at` are
 numba functions that other compiled kernels (TERCOM, IOAP) call inline. Values may be
@@ -103,6 +108,34 @@ def _cubic_row(values, r, c0, w0, w1, w2, w3, nx):  # pragma: no cover - compile
 
 
 @numba.njit(cache=True, nogil=True)
+def keys_derivative_weights(t):  # pragma: no cover - compiled
+    """Derivatives ``d/dt`` of :func:`keys_weights` (they sum to zero)."""
+    t2 = t * t
+    return (
+        0.5 * (-3.0 * t2 + 4.0 * t - 1.0),
+        0.5 * (9.0 * t2 - 10.0 * t),
+        0.5 * (-9.0 * t2 + 8.0 * t + 1.0),
+        0.5 * (3.0 * t2 - 2.0 * t),
+    )
+
+
+@numba.njit(cache=True, nogil=True)
+def _cubic_rows(values, r0, c0, w0, w1, w2, w3, nx, ny):  # pragma: no cover - compiled
+    """:func:`_cubic_row` on rows ``r0 - 1 .. r0 + 2`` (edge-extrapolated), four values."""
+    h1 = _cubic_row(values, r0, c0, w0, w1, w2, w3, nx)
+    h2 = _cubic_row(values, r0 + 1, c0, w0, w1, w2, w3, nx)
+    if r0 >= 1:
+        h0 = _cubic_row(values, r0 - 1, c0, w0, w1, w2, w3, nx)
+    else:
+        h0 = 3.0 * h1 - 3.0 * h2 + _cubic_row(values, r0 + 2, c0, w0, w1, w2, w3, nx)
+    if r0 + 2 <= ny - 1:
+        h3 = _cubic_row(values, r0 + 2, c0, w0, w1, w2, w3, nx)
+    else:
+        h3 = 3.0 * h2 - 3.0 * h1 + _cubic_row(values, r0 - 1, c0, w0, w1, w2, w3, nx)
+    return h0, h1, h2, h3
+
+
+@numba.njit(cache=True, nogil=True)
 def bicubic_at(values, c, r):  # pragma: no cover - compiled
     """Keys bicubic value at fractional cell ``(c, r)``; NaN off the grid or on no-data."""
     ny, nx = values.shape
@@ -112,18 +145,53 @@ def bicubic_at(values, c, r):  # pragma: no cover - compiled
     if not inside:
         return np.nan
     a0, a1, a2, a3 = keys_weights(fc)
-    h1 = _cubic_row(values, r0, c0, a0, a1, a2, a3, nx)
-    h2 = _cubic_row(values, r0 + 1, c0, a0, a1, a2, a3, nx)
-    if r0 >= 1:
-        h0 = _cubic_row(values, r0 - 1, c0, a0, a1, a2, a3, nx)
-    else:
-        h0 = 3.0 * h1 - 3.0 * h2 + _cubic_row(values, r0 + 2, c0, a0, a1, a2, a3, nx)
-    if r0 + 2 <= ny - 1:
-        h3 = _cubic_row(values, r0 + 2, c0, a0, a1, a2, a3, nx)
-    else:
-        h3 = 3.0 * h2 - 3.0 * h1 + _cubic_row(values, r0 - 1, c0, a0, a1, a2, a3, nx)
+    h0, h1, h2, h3 = _cubic_rows(values, r0, c0, a0, a1, a2, a3, nx, ny)
     b0, b1, b2, b3 = keys_weights(fr)
     return b0 * h0 + b1 * h1 + b2 * h2 + b3 * h3
+
+
+@numba.njit(cache=True, nogil=True)
+def bilinear_gradient_at(values, c, r):  # pragma: no cover - compiled
+    """``(value, d/dc, d/dr)`` of the bilinear read at ``(c, r)``, per cell; NaN as the value."""
+    ny, nx = values.shape
+    inside, c0, r0, fc, fr = stencil(c, r, nx, ny)
+    if not inside:
+        return np.nan, np.nan, np.nan
+    v00 = values[r0, c0] * 1.0
+    v01 = values[r0, c0 + 1] * 1.0
+    v10 = values[r0 + 1, c0] * 1.0
+    v11 = values[r0 + 1, c0 + 1] * 1.0
+    value = (v00 * (1 - fc) + v01 * fc) * (1 - fr) + (v10 * (1 - fc) + v11 * fc) * fr
+    d_col = (v01 - v00) * (1 - fr) + (v11 - v10) * fr
+    d_row = (v10 - v00) * (1 - fc) + (v11 - v01) * fc
+    return value, d_col, d_row
+
+
+@numba.njit(cache=True, nogil=True)
+def bicubic_gradient_at(values, c, r):  # pragma: no cover - compiled
+    """``(value, d/dc, d/dr)`` of the Keys bicubic read at ``(c, r)``, per cell.
+
+    The value is :func:`bicubic_at`'s (the same operations); the derivative along one axis
+    combines :func:`keys_derivative_weights` along it with :func:`keys_weights` along the
+    other, on the same edge-extrapolated ``4 x 4`` stencil, so all three are NaN off the
+    grid and wherever a stencil cell is NaN. Bilinear below three cells along an axis.
+    """
+    ny, nx = values.shape
+    if nx < 3 or ny < 3:
+        return bilinear_gradient_at(values, c, r)
+    inside, c0, r0, fc, fr = stencil(c, r, nx, ny)
+    if not inside:
+        return np.nan, np.nan, np.nan
+    a0, a1, a2, a3 = keys_weights(fc)
+    h0, h1, h2, h3 = _cubic_rows(values, r0, c0, a0, a1, a2, a3, nx, ny)
+    da0, da1, da2, da3 = keys_derivative_weights(fc)
+    g0, g1, g2, g3 = _cubic_rows(values, r0, c0, da0, da1, da2, da3, nx, ny)
+    b0, b1, b2, b3 = keys_weights(fr)
+    db0, db1, db2, db3 = keys_derivative_weights(fr)
+    value = b0 * h0 + b1 * h1 + b2 * h2 + b3 * h3
+    d_col = b0 * g0 + b1 * g1 + b2 * g2 + b3 * g3
+    d_row = db0 * h0 + db1 * h1 + db2 * h2 + db3 * h3
+    return value, d_col, d_row
 
 
 # ----------------------------------------------------------------------------- array kernels
@@ -154,19 +222,20 @@ def _nearest_xy(values, x0, y0, dx, dy, x, y, out):  # pragma: no cover - compil
 
 @numba.njit(cache=True, nogil=True)
 def _gradient_xy(values, x0, y0, dx, dy, x, y, out, gx, gy):  # pragma: no cover - compiled
-    ny, nx = values.shape
     for i in range(x.shape[0]):
-        inside, c0, r0, fc, fr = stencil((x[i] - x0) / dx, (y[i] - y0) / dy, nx, ny)
-        if not inside:
-            out[i] = gx[i] = gy[i] = np.nan
-            continue
-        v00 = values[r0, c0] * 1.0
-        v01 = values[r0, c0 + 1] * 1.0
-        v10 = values[r0 + 1, c0] * 1.0
-        v11 = values[r0 + 1, c0 + 1] * 1.0
-        out[i] = (v00 * (1 - fc) + v01 * fc) * (1 - fr) + (v10 * (1 - fc) + v11 * fc) * fr
-        gx[i] = ((v01 - v00) * (1 - fr) + (v11 - v10) * fr) / dx
-        gy[i] = ((v10 - v00) * (1 - fc) + (v11 - v01) * fc) / dy
+        value, d_col, d_row = bilinear_gradient_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
+        out[i] = value
+        gx[i] = d_col / dx
+        gy[i] = d_row / dy
+
+
+@numba.njit(cache=True, nogil=True)
+def _bicubic_gradient_xy(values, x0, y0, dx, dy, x, y, out, gx, gy):  # pragma: no cover
+    for i in range(x.shape[0]):
+        value, d_col, d_row = bicubic_gradient_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
+        out[i] = value
+        gx[i] = d_col / dx
+        gy[i] = d_row / dy
 
 
 @numba.njit(cache=True, nogil=True)
@@ -242,21 +311,28 @@ def gradient_xy(
     dy: float,
     x: ArrayLike,
     y: ArrayLike,
+    method: str = "bilinear",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Bilinear value and its gradient at metric positions.
+    """Value of a map read and its exact gradient at metric positions.
 
-    Parameters are those of :func:`read_xy`.
+    Parameters are those of :func:`read_xy`; ``method`` is ``"bilinear"`` (default) or
+    ``"bicubic"`` (the nearest-node read has no gradient).
 
     Returns
     -------
     tuple of numpy.ndarray
         ``(value, d value / dx, d value / dy)``: field units and field units per metre,
-        broadcast shape of ``x`` and ``y``; all NaN where the value is NaN off the grid
-        (a NaN stencil cell makes all three NaN as well).
+        broadcast shape of ``x`` and ``y``; the value is that of :func:`read_xy` with the
+        same ``method`` and the gradient that of its interpolant. All three are NaN where
+        the value is NaN (off the grid, or a NaN stencil cell).
     """
+    kernels = {"bilinear": _gradient_xy, "bicubic": _bicubic_gradient_xy}
+    kernel = kernels.get(method)
+    if kernel is None:
+        raise ValueError(f"unknown gradient method {method!r}; use 'bilinear' or 'bicubic'")
     x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
     out, gx, gy = np.empty(x.size), np.empty(x.size), np.empty(x.size)
-    _gradient_xy(
+    kernel(
         _map_values(values),
         float(x0),
         float(y0),

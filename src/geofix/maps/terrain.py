@@ -100,10 +100,11 @@ def plane_fit(
 
     The patch is the square of half side ``half_width_m`` centred on the point, sampled on
     a fixed ``k x k`` lattice (:func:`plane_stencil`: spacing about one cell, at most
-    ``max_side`` per side) read by bilinear interpolation. On a point that sits on a cell
-    centre this reads the cell centres themselves; elsewhere bilinear reads keep the fit
-    continuous in position, which a recursive filter needs. The fit is vectorised over
-    points with per-point NaN masks.
+    ``max_side`` per side) read with the grid's interpolation (:meth:`Grid.sample`:
+    bilinear unless ``grid.interpolation`` says bicubic). On a point that sits on a cell
+    centre this reads the cell centres themselves; elsewhere the interpolated reads keep
+    the fit continuous in position, which a recursive filter needs. The fit is vectorised
+    over points with per-point NaN masks.
 
     Parameters
     ----------

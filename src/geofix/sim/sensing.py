@@ -1,8 +1,9 @@
 """Simulated sensor readings: the one measurement model plus each sensor's errors.
 
 A reading is the map predicted at every beam's footprint along the *true* track
-(:func:`geofix.measurement.predict_track`, bilinear) with the sensor's noise, map error
-and lag added (:func:`geofix.sensors.echosounder.add_sensor_errors`).
+(:func:`geofix.measurement.predict_track` with :data:`TRUTH_READ`, bilinear whatever the
+grid's ``interpolation``) with the sensor's noise, map error and lag added
+(:func:`geofix.sensors.echosounder.add_sensor_errors`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,11 @@ from geofix.maps.grid import Grid
 from geofix.measurement import predict_track
 from geofix.sensors.echosounder import add_sensor_errors
 from geofix.sensors.spec import SensorSpec
+
+TRUTH_READ = "bilinear"
+"""The map read that makes the simulated readings (and so the one the bounds of
+:mod:`geofix.evaluate.crlb` differentiate): the true field is the bilinear interpolant of
+the grid, whichever read a filter's measurement model takes."""
 
 
 def measure_with_unlagged(
@@ -28,7 +34,7 @@ def measure_with_unlagged(
         ``(measured, unlagged)``, each ``(n, b)`` map units; they are equal except for a
         gravimeter with ``lag_s > 0``.
     """
-    clean = predict_track(grid, truth, heading, offsets)
+    clean = predict_track(grid, truth, heading, offsets, method=TRUTH_READ)
     return add_sensor_errors(clean, offsets, spec, rng, times)
 
 
@@ -40,7 +46,7 @@ def measure(
     Parameters
     ----------
     grid : Grid
-        The field the sensor sees (read with bilinear interpolation).
+        The field the sensor sees (read with :data:`TRUTH_READ`, bilinear).
     truth : array_like
         ``(n, 2)`` true positions, metres.
     heading : array_like
