@@ -103,6 +103,38 @@ def test_mpf_needs_the_ins_model_and_checks_its_settings(small_mission):
         parse_method_spec("mpf").match(stripped, np.random.default_rng(0))
     with pytest.raises(ConfigError, match="particles"):
         parse_method_spec("mpf:particles=5")
+    with pytest.raises(ConfigError, match="position_walk_cells"):
+        parse_method_spec("mpf:position_walk_cells=-1")
+
+
+def test_the_position_walk_spreads_a_collapsed_set_by_its_variance(small_mission):
+    from dataclasses import replace
+
+    from geofix.filters.base import motions
+    from geofix.nav.errstate import step_matrices
+
+    scen = small_mission("mpf-walk")
+    grid = prepare_map(scen)
+    problem = simulate_trial(scen, grid, 0).problem(grid)
+    rng = np.random.default_rng(3)
+    motion = motions(problem)[0]
+    for walk in (0.0, 2e-3):
+        filt = Mpf(particles=20000, position_walk_cells=walk)
+        state = filt.initialize(problem, rng)
+        count, dim = state.linear.shape
+        # every particle at the same error state, known exactly: only the noise spreads it
+        state = replace(
+            state,
+            dp=np.zeros((count, 2)),
+            linear=np.zeros((count, dim)),
+            cov=np.zeros((dim, dim)),
+            log_weight=np.full(count, -np.log(count)),
+        )
+        _, _, q = step_matrices(state.model, 0, motion.displacement, motion.dt)
+        expected = np.diag(q)[:2] + max((walk * grid.cell_size) ** 2 * motion.dt, 1e-6)
+        moved = filt.predict(state, motion, rng).dp
+        # sample variance of 20000 draws: relative spread sqrt(2 / 20000) = 1 %
+        np.testing.assert_allclose(moved.var(axis=0), expected, rtol=0.05)
 
 
 def test_mpf_seeded_runs_repeat(small_mission):

@@ -378,7 +378,7 @@ def _initial_offset(grid: Grid, xy: np.ndarray, h: np.ndarray) -> float:
 
 def _covariance(problem: MatchProblem, track, heading, rms: float) -> np.ndarray | None:
     """Inverse Fisher information of the final footprints, m^2 (None when singular)."""
-    gx, gy = beam_gradients(problem.grid, track, heading, problem.offsets)
+    gx, gy = beam_gradients(problem.grid, track, heading, problem.offsets, "bilinear")
     keep = np.isfinite(problem.measured)
     g = np.column_stack([gx[keep], gy[keep]])
     g = g[(g != 0).any(axis=1)]

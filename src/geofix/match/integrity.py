@@ -101,7 +101,7 @@ def information_covariance(
     """
     beams = np.arange(problem.offsets.shape[0]) if beams is None else np.asarray(beams)
     heading = problem.heading if heading is None else heading
-    gx, gy = beam_gradients(problem.grid, track, heading, problem.offsets[beams])
+    gx, gy = beam_gradients(problem.grid, track, heading, problem.offsets[beams], "bilinear")
     var = np.maximum(problem.beam_noise_var()[beams], 1e-12)
     info = sample_information(gx, gy, var, valid=np.isfinite(problem.measured[:, beams]))
     prior_var = max(float(np.max(problem.sigma_position)), problem.grid.cell_size) ** 2
