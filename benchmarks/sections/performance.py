@@ -185,6 +185,22 @@ def _met(ok: bool) -> str:
     return "met" if ok else "**not met**"
 
 
+def _long_scaling(c: dict, goals: dict) -> list[list[str]]:
+    """The row of the longer scaling run (none in a report that lacks it)."""
+    s = c.get("scaling_long")
+    if not s:
+        return []
+    lo, hi = s["speedup_spread"]
+    return [
+        [
+            f"{s['trials']} trials, --jobs 1 / --jobs 2 wall time (median)",
+            f"{np.median(s['jobs1_wall_s']):.1f} s / {np.median(s['jobs2_wall_s']):.1f} s",
+            f"speed-up {s['speedup']:.2f} ({lo:.2f}–{hi:.2f}), against the same goal: "
+            f"{_met(s['speedup'] >= goals['speedup'])}",
+        ]
+    ]
+
+
 def _campaign(f: dict) -> str:
     c = f.get("campaign")
     if not c:
@@ -219,6 +235,7 @@ def _campaign(f: dict) -> str:
             f"speed-up {s['speedup']:.2f} ({lo:.2f}–{hi:.2f}), goal ≥ {goals['speedup']}: "
             f"{_met(s['speedup'] >= goals['speedup'])}",
         ],
+        *_long_scaling(c, goals),
         [
             f"{s['trials']} trials, CPU time after imports, workers included, "
             "--jobs 1 / --jobs 2 (median)",
@@ -260,6 +277,14 @@ def _campaign(f: dict) -> str:
         "ratio moves with the load; the spread of three alternating pairs is in "
         "brackets. Start-up times include the interpreter and its imports.\n\n"
         + md_table(["figure", "value", "goal"], rows)
+        + "\nThe scaling runs use an 800 × 800 map (the big map's reading would be the same "
+        "serial cost for both). One of their trials costs about 8 ms (the TERCOM match "
+        "1.5 ms, the two bounds of the trial 4 ms, its simulation 2 ms), so 40 trials are "
+        "about 0.3 s of work, against about 0.1 s that a campaign spends whatever its "
+        "worker count (reading the map, opening and reading the store, the summary, "
+        "forking the workers and running the first trial before them): that fixed part "
+        "caps the 40-trial ratio well below 2, and the 400-trial run, where it is "
+        "amortised, shows what the second worker gives.\n"
     )
 
 
