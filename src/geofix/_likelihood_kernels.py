@@ -62,23 +62,26 @@ def _all_inside(values, bounds, bcol, brow):  # pragma: no cover - compiled
     )
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _beam_reads(values, col, row, bcol, brow, inside, out):
-    """``out[k]``: the map read by beam ``k`` from fractional cell ``(col, row)``.
+@numba.njit(cache=True, nogil=True)
+def _beam_major_reads(values, cols, rows, n, bcol, brow, inside, out):  # pragma: no cover
+    """``out[k, i]``: the map read by beam ``k`` from fractional cell ``(cols[i], rows[i])``.
 
-    ``inside``: every footprint is known to lie inside the stencil range (no checks).
+    For ``i < n``, beam by beam (the inner loop over hypotheses vectorises). ``inside``:
+    every footprint is known to lie inside the stencil range (no checks).
     """
-    if inside:  # pragma: no cover - compiled
-        for k in range(bcol.shape[0]):
-            out[k] = _read_inside(values, col + bcol[k], row + brow[k])
-    else:
-        for k in range(bcol.shape[0]):
-            out[k] = bilinear_at(values, col + bcol[k], row + brow[k])
+    for k in range(bcol.shape[0]):
+        bc, br = bcol[k], brow[k]
+        if inside:
+            for i in range(n):
+                out[k, i] = _read_inside(values, cols[i] + bc, rows[i] + br)
+        else:
+            for i in range(n):
+                out[k, i] = bilinear_at(values, cols[i] + bc, rows[i] + br)
 
 
 #: Hypotheses read per block before their likelihoods are summed in one call: a compiled
 #: call with array arguments costs about 70 ns (reference counting), as much as 20 reads,
-#: so the sums are made a block of rows at a time.
+#: so reads and sums are made a block of hypotheses at a time.
 BLOCK = 128
 
 
@@ -108,12 +111,12 @@ def hypotheses_ll(values, origin, cell, px, py, bcol, brow, measured, var, off_m
     """``out[i]``: log-likelihood from position ``(px[i], py[i])``, metres."""
     cols, rows, inside = _hypothesis_cells(values, origin, cell, px, py, bcol, brow)
     n = px.shape[0]
-    buffer = np.empty((BLOCK, measured.shape[0]))
+    buffer = np.empty((measured.shape[0], BLOCK))
     for start in range(0, n, BLOCK):  # pragma: no cover - compiled
         stop = min(start + BLOCK, n)
-        for i in range(start, stop):
-            _beam_reads(values, cols[i], rows[i], bcol, brow, inside, buffer[i - start])
-        _term_sums(buffer, stop - start, measured, var, off_map, out[start:stop])
+        c, r = cols[start:stop], rows[start:stop]
+        _beam_major_reads(values, c, r, stop - start, bcol, brow, inside, buffer)
+        _beam_major_sums(buffer, stop - start, measured, var, off_map, out[start:stop])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -141,12 +144,15 @@ def _nodes_inside(values, origin, cell, centre, axes, u, v, bcol, brow):  # prag
 def node_ll(values, origin, cell, centre, axes, u, v, bcol, brow, measured, var, off_map, out):
     """``out[i, j]``: log-likelihood from node ``[i, j]`` of a point-mass grid."""
     inside = _nodes_inside(values, origin, cell, centre, axes, u, v, bcol, brow)
-    buffer = np.empty((v.shape[0], measured.shape[0]))
+    n1 = v.shape[0]
+    buffer = np.empty((measured.shape[0], n1))
+    cols = np.empty(n1)
+    rows = np.empty(n1)
     for i in range(u.shape[0]):  # pragma: no cover - compiled
-        for j in range(v.shape[0]):
-            col, row = _node_cell(origin, cell, centre, axes, u, v, i, j)
-            _beam_reads(values, col, row, bcol, brow, inside, buffer[j])
-        _term_sums(buffer, v.shape[0], measured, var, off_map, out[i])
+        for j in range(n1):
+            cols[j], rows[j] = _node_cell(origin, cell, centre, axes, u, v, i, j)
+        _beam_major_reads(values, cols, rows, n1, bcol, brow, inside, buffer)
+        _beam_major_sums(buffer, n1, measured, var, off_map, out[i])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -178,6 +184,25 @@ def _difference_sums(a, b):  # pragma: no cover - compiled
         acc += d * d if finite else 0.0
         count += 1 if finite else 0
     return acc, count
+
+
+@numba.njit(cache=True, nogil=True, fastmath=_REASSOC)
+def _beam_major_sums(predicted, n, measured, var, off_map, out):  # pragma: no cover - compiled
+    """``out[i] = sum_k -0.5 (p[k, i] - y_k)^2 / var_k`` for ``i < n``, in beam order.
+
+    ``predicted`` is ``(b, >= n)`` (a block of hypotheses, beam by beam); ``off_map`` for a
+    non-finite term. The sum over beams of each hypothesis is in beam order (the
+    reference's); the loop over hypotheses vectorises.
+    """
+    for i in range(n):
+        out[i] = 0.0
+    for k in range(measured.shape[0]):
+        y = measured[k]
+        scale = -0.5 / var[k]
+        for i in range(n):
+            d = predicted[k, i] - y
+            term = d * d * scale
+            out[i] += term if np.isfinite(term) else off_map
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_REASSOC)
