@@ -157,15 +157,13 @@ def node_ll(values, origin, cell, centre, axes, u, v, bcol, brow, measured, var,
 
 @numba.njit(cache=True, nogil=True)
 def _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, i, p, inside):
-    """``p[i, j, k]``: the map read by beam ``k`` from node ``[i, j]``, for one row ``i``."""
-    for j in range(v.shape[0]):  # pragma: no cover - compiled
-        col, row = _node_cell(origin, cell, centre, axes, u, v, i, j)
-        if inside:
-            for k in range(bcol.shape[0]):
-                p[i, j, k] = _read_inside(values, col + bcol[k], row + brow[k])
-        else:
-            for k in range(bcol.shape[0]):
-                p[i, j, k] = bilinear_at(values, col + bcol[k], row + brow[k])
+    """``p[i, k, j]``: the map read by beam ``k`` from node ``[i, j]``, for one row ``i``."""
+    n1 = v.shape[0]
+    cols = np.empty(n1)
+    rows = np.empty(n1)
+    for j in range(n1):  # pragma: no cover - compiled
+        cols[j], rows[j] = _node_cell(origin, cell, centre, axes, u, v, i, j)
+    _beam_major_reads(values, cols, rows, n1, bcol, brow, inside, p[i])
 
 
 _REASSOC = {"reassoc"}
@@ -206,18 +204,17 @@ def _beam_major_sums(predicted, n, measured, var, off_map, out):  # pragma: no c
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_REASSOC)
-def _term_sums(predicted, rows, measured, var, off_map, out):  # pragma: no cover - compiled
-    """``out[i] = sum(-0.5 (p - y)^2 / var)`` over beams of rows ``i < rows`` of ``predicted``.
-
-    ``off_map`` for a non-finite term. One call sums a block of hypotheses.
-    """
-    for i in range(rows):
-        acc = 0.0
-        for k in range(measured.shape[0]):
-            d = predicted[i, k] - measured[k]
-            term = -0.5 * d * d / var[k]
-            acc += term if np.isfinite(term) else off_map
-        out[i] = acc
+def _step_difference_sums(row):  # pragma: no cover - compiled
+    """``(sum(d^2), count)`` of the finite differences ``row[k, j + 1] - row[k, j]``."""
+    acc = 0.0
+    count = 0
+    for k in range(row.shape[0]):
+        for j in range(row.shape[1] - 1):
+            d = row[k, j + 1] - row[k, j]
+            finite = np.isfinite(d)
+            acc += d * d if finite else 0.0
+            count += 1 if finite else 0
+    return acc, count
 
 
 @numba.njit(cache=True, nogil=True)
@@ -226,7 +223,7 @@ def node_ll_flattened(
 ):  # pragma: no cover - compiled
     """Node log-likelihoods with the node field variance added to every beam's variance.
 
-    ``p`` is a scratch ``(N0, N1, b)`` array. Rows are read one ahead, so the neighbour
+    ``p`` is a scratch ``(N0, b, N1)`` array. Rows are read one ahead, so the neighbour
     differences of row ``i`` are summed while rows ``i`` and ``i + 1`` are in cache. The
     reads are exact; the sums (field variance, then each node's log-likelihood) are
     reassociated so that they vectorise: within ~1e-15 relative of the reference's
@@ -237,7 +234,7 @@ def node_ll_flattened(
     count0 = count1 = 0
     inside = _nodes_inside(values, origin, cell, centre, axes, u, v, bcol, brow)
     _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, 0, p, inside)
-    flat_p = p.reshape(n0, n1 * b)
+    flat_p = p.reshape(n0, b * n1)
     for i in range(n0):
         if i + 1 < n0:
             args = (values, origin, cell, centre, axes, u, v, bcol, brow, i + 1, p, inside)
@@ -245,7 +242,7 @@ def node_ll_flattened(
             s, c = _difference_sums(flat_p[i], flat_p[i + 1])
             acc0 += s
             count0 += c
-        s, c = _difference_sums(flat_p[i, : (n1 - 1) * b], flat_p[i, b:])
+        s, c = _step_difference_sums(p[i])
         acc1 += s
         count1 += c
     total = 0.0  # the reference: (acc0 / count0 + acc1 / count1) / 12, each when counted
@@ -256,45 +253,45 @@ def node_ll_flattened(
     field_var = total / 12.0
     flat = var + field_var
     for i in range(n0):
-        _term_sums(p[i], n1, measured, flat, off_map, out[i])
+        _beam_major_sums(p[i], n1, measured, flat, off_map, out[i])
     return field_var
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_REASSOC)
-def _local_term_sums(f0, f1, f2, rows, measured, var, off_map, out):  # pragma: no cover
+def _local_term_sums(f0, f1, f2, n, measured, var, off_map, out):  # pragma: no cover
     """``out[i]``: log-likelihood of the beams from anywhere in hypothesis ``i``'s share.
 
-    Rows ``i < rows`` of ``f0``, the reads at each hypothesis, and of ``f1``, ``f2``, at
-    its position moved by each side of its share (``(rows, b)`` each; one call sums a
-    block). The reading of beam ``k`` from a position uniform over the share is, to
-    first order, ``f0_k + (d1_k a + d2_k c)`` with ``a``, ``c``
+    ``f0[k, i]`` is beam ``k``'s read at hypothesis ``i < n``, ``f1``, ``f2`` its reads
+    at the hypothesis moved by each side of its share (``(b, >= n)`` each, beam by beam;
+    one call sums a block). The reading of beam ``k`` from a position uniform over the
+    share is, to first order, ``f0_k + (d1_k a + d2_k c)`` with ``a``, ``c``
     uniform on ``[-1/2, 1/2]`` (variance 1/12) for all beams at once: the residual ``r``
     is ``N(0, R + D D^T / 12)``, ``D`` the ``(b, 2)`` differences. With ``W = R^-1``
     (Woodbury, matrix determinant lemma): ``r^T S^-1 r = r^T W r - u^T (12 I + D^T W D)^-1 u``,
     ``u = D^T W r``, and ``log(det S / det R) = log det(I + D^T W D / 12)``. A
     non-finite difference counts 0; an off-map read costs ``off_map``.
     """
-    for i in range(rows):
-        q = 0.0
-        a11 = a12 = a22 = 0.0
-        u1 = u2 = 0.0
-        penalty = 0.0
-        for k in range(measured.shape[0]):
-            d1 = f1[i, k] - f0[i, k]
-            d2 = f2[i, k] - f0[i, k]
+    sums = np.zeros((7, n))  # q, a11, a12, a22, u1, u2, penalty
+    for k in range(measured.shape[0]):
+        w = 1.0 / var[k]
+        y = measured[k]
+        for i in range(n):
+            d1 = f1[k, i] - f0[k, i]
+            d2 = f2[k, i] - f0[k, i]
             d1 = d1 if np.isfinite(d1) else 0.0
             d2 = d2 if np.isfinite(d2) else 0.0
-            r = measured[k] - f0[i, k]
+            r = y - f0[k, i]
             if not np.isfinite(r):
-                penalty += off_map
+                sums[6, i] += off_map
                 continue
-            w = 1.0 / var[k]
-            q += w * r * r
-            a11 += w * d1 * d1
-            a12 += w * d1 * d2
-            a22 += w * d2 * d2
-            u1 += w * d1 * r
-            u2 += w * d2 * r
+            sums[0, i] += w * r * r
+            sums[1, i] += w * d1 * d1
+            sums[2, i] += w * d1 * d2
+            sums[3, i] += w * d2 * d2
+            sums[4, i] += w * d1 * r
+            sums[5, i] += w * d2 * r
+    for i in range(n):
+        q, a11, a12, a22, u1, u2, penalty = sums[:, i]
         m11 = 12.0 + a11
         m22 = 12.0 + a22
         det = m11 * m22 - a12 * a12
@@ -316,20 +313,16 @@ def hypotheses_ll_local(
     b = measured.shape[0]
     n = px.shape[0]
     cols, rows, inside = _hypothesis_cells(values, origin, cell, px, py, bcol, brow)
-    f0 = np.empty((BLOCK, b))
-    f1 = np.empty((BLOCK, b))
-    f2 = np.empty((BLOCK, b))
+    f0 = np.empty((b, BLOCK))
+    f1 = np.empty((b, BLOCK))
+    f2 = np.empty((b, BLOCK))
     for start in range(0, n, BLOCK):
         stop = min(start + BLOCK, n)
-        for i in range(start, stop):
-            c, r, m = cols[i], rows[i], i - start
-            for k in range(b):
-                ck = c + bcol[k]
-                rk = r + brow[k]
-                f0[m, k] = _read_inside(values, ck, rk) if inside else bilinear_at(values, ck, rk)
-                f1[m, k] = bilinear_at(values, ck + shifts[0, 0], rk + shifts[0, 1])
-                f2[m, k] = bilinear_at(values, ck + shifts[1, 0], rk + shifts[1, 1])
-        _local_term_sums(f0, f1, f2, stop - start, measured, var, off_map, out[start:stop])
+        c, r, m = cols[start:stop], rows[start:stop], stop - start
+        _beam_major_reads(values, c, r, m, bcol, brow, inside, f0)
+        _beam_major_reads(values, c + shifts[0, 0], r + shifts[0, 1], m, bcol, brow, False, f1)
+        _beam_major_reads(values, c + shifts[1, 0], r + shifts[1, 1], m, bcol, brow, False, f2)
+        _local_term_sums(f0, f1, f2, m, measured, var, off_map, out[start:stop])
 
 
 @numba.njit(cache=True, nogil=True)
@@ -339,7 +332,7 @@ def node_ll_local(
     """Node log-likelihoods, each node with its own field variation within its cell.
 
     ``u``, ``v`` hold one node more than the grid along each axis (``N0 + 1``,
-    ``N1 + 1``), ``p`` is a scratch ``(N0 + 1, N1 + 1, b)`` array: every read is made
+    ``N1 + 1``), ``p`` is a scratch ``(N0 + 1, b, N1 + 1)`` array: every read is made
     once, and the next node along each axis gives the field's change over one node step
     (:func:`_local_term_sums`). ``out`` is ``(N0, N1)``.
     """
@@ -348,7 +341,7 @@ def node_ll_local(
         _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, i, p, inside)
     n1 = out.shape[1]
     for i in range(out.shape[0]):
-        _local_term_sums(p[i], p[i + 1], p[i, 1:], n1, measured, var, off_map, out[i])
+        _local_term_sums(p[i], p[i + 1], p[i, :, 1:], n1, measured, var, off_map, out[i])
 
 
 @numba.njit(cache=True, nogil=True)

@@ -499,7 +499,10 @@ SCRATCH_KEEP_BYTES = 64 * 2**20
 
 
 def _scratch(n0: int, n1: int, beams: int) -> np.ndarray:
-    """A ``(n0, n1, beams)`` float64 scratch array, reused by later calls of this thread."""
+    """A ``(n0, beams, n1)`` float64 scratch array, reused by later calls of this thread.
+
+    Node rows beam by beam: ``p[i, k, j]`` is beam ``k``'s read from node ``[i, j]``.
+    """
     check_allocation(
         cells_bytes(n0, n1, beams), f"node predictions of {n0} x {n1} nodes x {beams} beams"
     )
@@ -509,7 +512,7 @@ def _scratch(n0: int, n1: int, beams: int) -> np.ndarray:
         buffer = np.empty(max(size, 1))
         if 8 * size <= SCRATCH_KEEP_BYTES:
             _SCRATCH.buffer = buffer
-    return buffer[:size].reshape(n0, n1, beams)
+    return buffer[:size].reshape(n0, beams, n1)
 
 
 def map_error_variance(error_std: Grid | None, position, heading: float, offsets) -> np.ndarray:
