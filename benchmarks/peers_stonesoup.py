@@ -26,23 +26,24 @@ Usage::
 
     python benchmarks/peers_stonesoup.py --scenario azores-demo --trials 10 --points 61
 
-Measured (Stone Soup 1.9.1, one core each, a shared and busy 2-core machine: only the
-same-run ratios mean anything), Stone Soup's time per trial over ours -- from the filters
-results section (``benchmarks/results.py --only filters``: 10, 10 and 8 trials):
+Measured (Stone Soup 1.9.1, one core each, a 2-core machine running nothing else: the
+median over trials of the paired per-trial time ratios, Stone Soup's over ours) -- from the
+filters results section (``benchmarks/results.py --only filters``: 10, 10 and 8 trials):
 
 =====================  =====  =====
 scenario               pmf    pf
 =====================  =====  =====
-azores-demo            3.3    3.4
-source004_main         3.4    3.7
-source001_rugged       4.1    3.6
+azores-demo            3.2    3.3
+source004_main         4.7    3.6
+source001_rugged       3.2    3.8
 =====================  =====  =====
 
-Before the compiled fused likelihood and grid loops the same comparison (2 trials) gave
-1.9 / 1.6, 2.2 / 1.7 and 3.4 / 2.5. The ratio depends on the machine's load (Stone
-Soup's many small numpy calls suffer more on a busy machine): on a quiet one (yardstick
-1 ms) the final code gave 2.6 / 2.9 (azores-demo, 5 trials), 3.4 / 3.3 (source004_main,
-5 trials) and 1.9 / 3.1 (source001_rugged, 2 trials).
+With the likelihood summed one hypothesis per compiled call (about 70 ns of call
+overhead each, as much as 20 map reads) the same machine gave 2.3 / 2.0 (azores-demo) and
+2.2 / 2.8 (source001_rugged); before the compiled fused likelihood and grid loops the
+comparison gave 1.9 / 1.6, 2.2 / 1.7 and 3.4 / 2.5. Single trials vary (the section
+prints the range of the per-trial ratios): a trial that meets a slow stretch of a shared
+machine moves its ratio by up to 1.5x either way.
 """
 
 from __future__ import annotations
@@ -285,13 +286,18 @@ def main() -> None:
             f"   failures {rec['failures']} {rec['message'][:80]}"
         )
     for name, ratio in time_ratios(result).items():
-        print(f"{name}: Stone Soup time / ours {ratio:6.2f}")
+        print(f"{name}: Stone Soup time / ours (median of trials) {ratio:6.2f}")
 
 
 def time_ratios(result: dict) -> dict:
-    """``{"pmf": r, "pf": r}``: Stone Soup's mean time per trial over ours (same run)."""
+    """``{"pmf": r, "pf": r}``: median over trials of Stone Soup's time over ours.
+
+    Each trial is run by both in turn, so a trial's ratio compares two runs made within a
+    second of each other; the median of those paired ratios is less moved by the
+    machine's speed changes than a ratio of mean times.
+    """
     return {
-        f: float(result[f"stonesoup {f}"]["times"].mean() / result[f"geofix {f}"]["times"].mean())
+        f: float(np.median(result[f"stonesoup {f}"]["times"] / result[f"geofix {f}"]["times"]))
         for f in ("pmf", "pf")
     }
 
