@@ -8,9 +8,12 @@ exactly; they may be extended).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
 from typing import Annotated
@@ -127,7 +130,9 @@ def _guarded(fn):
     except GeofixError as exc:
         _fail(str(exc))
     except KeyboardInterrupt:
+        _block_interrupts()
         _print_line("interrupted:", "finished trials are stored; run the same command to resume")
+        _leave_after_interrupt()
         raise typer.Exit(code=130) from None
     except MemoryError:
         _fail("out of memory (lower the sizes, or see --memory-budget)")
@@ -140,6 +145,29 @@ def _guarded(fn):
         if os.environ.get("GEOFIX_DEBUG"):
             raise
         _fail(f"internal error {type(exc).__name__}: {exc} (set GEOFIX_DEBUG=1 for details)")
+
+
+def _block_interrupts() -> None:
+    """Block ``SIGINT`` in this thread (where signal masks exist): one Ctrl-C is enough."""
+    with contextlib.suppress(AttributeError, OSError, ValueError):
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+
+
+def _leave_after_interrupt() -> None:
+    """After a Ctrl-C with worker threads about: exit 130 at once.
+
+    Every finished trial is committed and the workers are stopped by then. A normal
+    interpreter exit would still join the process pool's manager thread, which a Ctrl-C
+    landing inside the pool's own locking can leave waiting for ever. So the output is
+    flushed and the process leaves without the joins. Without other threads (nothing to
+    join) the normal exit follows.
+    """
+    if threading.active_count() <= 1:
+        return
+    with contextlib.suppress(OSError, ValueError):
+        sys.stdout.flush()
+        sys.stderr.flush()
+    os._exit(130)
 
 
 @app.command()
