@@ -76,3 +76,21 @@ def test_bounded_submission_keeps_few_tasks_in_flight():
             results.append(value)
     assert sorted(results) == [2 * t for t in range(100)]
     assert peak[0] <= 5 + 1  # the limit, plus the result being handed over
+
+
+def test_chunks_follow_the_measured_task_time_and_share_out_the_last_tasks():
+    from geofix.evaluate.campaign import CHUNK_TARGET_S, MAX_CHUNK, _Chunker
+
+    chunker = _Chunker(iter(range(1000)), left=1000, jobs=2)
+    assert [len(chunker.next()) for _ in range(3)] == [1, 1, 1]  # nothing measured yet
+    chunker.observe(3, 3 * CHUNK_TARGET_S / 10)  # tasks of a tenth of the target
+    assert len(chunker.next()) == 10
+    chunker.observe(1000, 1e-6)  # very quick tasks: capped
+    assert len(chunker.next()) == MAX_CHUNK
+    # near the end a chunk holds at most the tasks left over twice the workers
+    rest = _Chunker(iter(range(20)), left=20, jobs=2)
+    rest.observe(1, 1e-6)
+    sizes = []
+    while chunk := rest.next():
+        sizes.append(len(chunk))
+    assert sum(sizes) == 20 and sizes[0] == 5 and sizes[-1] == 1

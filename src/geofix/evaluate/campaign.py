@@ -8,7 +8,11 @@ workers share the calling process's read-only pages, spawned ones map one read-o
 shared-memory copy, Dask workers get it by one broadcast ``scatter``. Tasks
 are submitted a few per worker at a time, so memory does not grow with the number of
 trials. A task is one trial
-index with the methods still to run on it, so each trial is simulated once per task.
+index with the methods still to run on it, so each trial is simulated once per task. A
+local worker receives its tasks in chunks of about :data:`CHUNK_TARGET_S` of measured
+work (one task at first; never more than the tasks left over twice the workers), so that
+quick trials do not spend their time in sending tasks and results: on 400 TERCOM trials
+of about 4 ms, chunks took ``--jobs 2`` from 1.4x to 1.7x the speed of ``--jobs 1``.
 Workers return results; the calling process writes them to the store as they complete, so
 an interrupted campaign resumes where it stopped. The generator of method ``m`` on trial
 ``i`` depends only on ``(seed, i, m)``: the same command gives the same table whatever the
@@ -48,6 +52,7 @@ import os
 import sqlite3
 import sys
 import threading
+import time
 import warnings
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -533,7 +538,12 @@ def _backend(jobs: int, scheduler, n_tasks: int) -> Callable:
         return lambda *args: _run_dask(scheduler, *args)
     if jobs == 1 or n_tasks <= 1:
         return _run_inline
-    return lambda *args: _run_pool(min(jobs, n_tasks), *args)
+    workers = min(jobs, n_tasks)
+
+    def pool(simulate_trial, scenario, grid, tasks):
+        return _run_pool(workers, simulate_trial, scenario, grid, tasks, total=n_tasks)
+
+    return pool
 
 
 def _run_inline(simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
@@ -605,21 +615,75 @@ def _init_worker(source, parent_pid: int | None = None) -> None:
     _threads.use_serial_kernels()  # one thread per worker: no thread pool to start
 
 
-def _pool_task(simulate_trial, scenario, task) -> _Done:
+def _pool_chunk(simulate_trial, scenario, chunk: list[_Task]) -> tuple[list[_Done], float]:
+    """Run the tasks of a chunk in this worker: their results and the seconds they took."""
     grid = _WORKER_GRID
     if grid is None:  # pragma: no cover - _init_worker maps it in every worker
         raise RuntimeError("campaign worker has no map: its initializer did not run")
-    return run_task(simulate_trial, scenario, grid, task)
+    start = time.perf_counter()
+    done = [run_task(simulate_trial, scenario, grid, task) for task in chunk]
+    return done, time.perf_counter() - start
 
 
-def _run_pool(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
+#: Wanted duration of one chunk of tasks sent to a local worker, seconds: long enough
+#: that sending the tasks and receiving their results (about 1 ms a future in the calling
+#: process, which shares the cores with the workers) is a small part of it.
+CHUNK_TARGET_S = 0.05
+#: Most tasks in one chunk (a killed campaign loses at most the chunks in flight).
+MAX_CHUNK = 32
+
+
+class _Chunker:
+    """Cut the task stream into chunks of about :data:`CHUNK_TARGET_S` of work.
+
+    The first chunks hold one task; from then on the size follows the measured mean
+    duration of a task in the workers, and never exceeds the tasks left over twice the
+    workers (so that the last chunks still share out evenly). ``left`` is the number of
+    tasks in the stream (None: unknown, no such cap).
+    """
+
+    def __init__(self, tasks: Iterator[_Task], left: int | None = None, jobs: int = 1) -> None:
+        self.tasks = tasks
+        self.left = left
+        self.jobs = max(int(jobs), 1)
+        self.count = 0
+        self.seconds = 0.0
+
+    def observe(self, count: int, seconds: float) -> None:
+        """Record that ``count`` tasks took ``seconds`` in a worker."""
+        self.count += count
+        self.seconds += seconds
+
+    def size(self) -> int:
+        """Tasks in the next chunk."""
+        if self.count == 0 or self.seconds <= 0.0:
+            return 1
+        per_task = self.seconds / self.count
+        size = min(MAX_CHUNK, max(1, int(CHUNK_TARGET_S / per_task + 1e-9)))
+        if self.left is not None:
+            size = min(size, max(1, self.left // (2 * self.jobs)))
+        return int(size)
+
+    def next(self) -> list[_Task]:
+        """The next chunk (empty when the tasks are exhausted)."""
+        chunk = list(itertools.islice(self.tasks, self.size()))
+        if self.left is not None:
+            self.left -= len(chunk)
+        return chunk
+
+
+def _run_pool(
+    jobs: int, simulate_trial, scenario, grid, tasks, total: int | None = None
+) -> Iterator[_Done]:
     """Local worker processes sharing one read-only map; started now, results lazily."""
-    results = _pool_results(jobs, simulate_trial, scenario, grid, tasks)
+    results = _pool_results(jobs, simulate_trial, scenario, grid, tasks, total)
     next(results)  # workers start (and the first tasks go out) before any progress report
     return results
 
 
-def _pool_results(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator:
+def _pool_results(
+    jobs: int, simulate_trial, scenario, grid, tasks, total: int | None = None
+) -> Iterator:
     """Yield None once the workers are started, then their results (bounded submission)."""
     method = worker_start_method()
     tasks = iter(tasks)
@@ -638,17 +702,19 @@ def _pool_results(jobs: int, simulate_trial, scenario, grid, tasks) -> Iterator:
         finished = False
         try:
 
-            def submit(task):
+            def submit(chunk):
                 with sigint_deferred():  # a worker started by this submit holds Ctrl-C
-                    return pool.submit(_pool_task, simulate_trial, scenario, task)
+                    return pool.submit(_pool_chunk, simulate_trial, scenario, chunk)
 
             try:
-                limit = jobs * _IN_FLIGHT_PER_WORKER
-                pending = {submit(task) for task in itertools.islice(tasks, limit)}
+                left = None if total is None else total - (first is not None)
+                chunker = _Chunker(tasks, left, jobs)
+                chunks = (chunker.next() for _ in range(jobs * _IN_FLIGHT_PER_WORKER))
+                pending = {submit(chunk) for chunk in chunks if chunk}
                 yield None
                 if first is not None:
                     yield first
-                yield from _drain(submit, tasks, pending)
+                yield from _drain_chunks(submit, chunker, pending)
             except BrokenProcessPool:
                 raise GeofixError(
                     "a worker process died (killed, or out of memory); finished trials are "
@@ -692,6 +758,19 @@ def _drain(submit: Callable, tasks: Iterator, pending: set) -> Iterator[_Done]:
             for task in itertools.islice(tasks, 1):
                 pending.add(submit(task))
             yield future.result()
+
+
+def _drain_chunks(submit: Callable, chunker: _Chunker, pending: set) -> Iterator[_Done]:
+    """Results of the ``pending`` chunk futures as they complete, one new chunk per chunk."""
+    while pending:
+        finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+        for future in finished:
+            done, seconds = future.result()
+            chunker.observe(len(done), seconds)
+            chunk = chunker.next()
+            if chunk:
+                pending.add(submit(chunk))
+            yield from done
 
 
 def _run_dask(scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
