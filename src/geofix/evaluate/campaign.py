@@ -12,7 +12,7 @@ index with the methods still to run on it, so each trial is simulated once per t
 local worker receives its tasks in chunks of about :data:`CHUNK_TARGET_S` of measured
 work (one task at first; never more than the tasks left over twice the workers), so that
 quick trials do not spend their time in sending tasks and results: on 400 TERCOM trials
-of about 4 ms, chunks took ``--jobs 2`` from 1.4x to 1.7x the speed of ``--jobs 1``.
+of about 4 ms, chunks took ``--jobs 2`` from 1.4x to 1.65-1.7x the speed of ``--jobs 1``.
 Workers return results; the calling process writes them to the store as they complete, so
 an interrupted campaign resumes where it stopped. The generator of method ``m`` on trial
 ``i`` depends only on ``(seed, i, m)``: the same command gives the same table whatever the
