@@ -44,16 +44,17 @@ How to read it: `converged at` is the first ping the navigator's test passed (la
 posterior, a KL divergence to its moment-matched Gaussian of at most 0.2 nats). The
 point-mass filter passes it at the first ping -- one 432-beam swath over this terrain pins
 the position -- and stays within two cells throughout; its remaining error (≈ 15 m at the
-end) sits at the survey's ends, where the gridded cells hold fewer pings. The particle
-filters (`pf`, `mpf`) pass it one ping later: their first posterior, a few surviving
-particles of the prior's lattice, is far from Gaussian (the KL term refuses it). `mpf`
-carries the whole INS error state (velocity, tilt, biases, heading error; the model of the
-INS numbers the replay simulates, `geofix replay` builds it from them) and predicts each
-step from that model plus the navigator's per-step position noise; its first update
-collapses onto a particle about two cells off (the worst track error), which it leaves
-only gradually -- over about 25 pings (≈ 150 s) the per-step noise lets the set drift to
-the better fit -- before tracking within ≈ 5 m and ending within ≈ 17 m like `pf`; the
-mean track error shows that slow start. The EKFs (`sitan`, `sitan-bank`)
+end) sits at the survey's ends, where the gridded cells hold fewer pings. `pf` passes it
+one ping later: one 64-beam update leaves a few surviving particles of its 25 m prior
+lattice, far from Gaussian (the KL term refuses it), sometimes a single one a cell or two
+off. `mpf` carries the whole INS error state (velocity, tilt, biases, heading error; the
+model of the INS numbers the replay simulates, `geofix replay` builds it from them) and
+applies an update that sharp in stages (progressive correction: a fraction of the
+likelihood that keeps 100 effective particles, the copies spread over their original's
+share, the likelihood read again, up to four times), so it too passes the test at the
+first ping; before the stages
+its first update kept one particle about two cells off, a 0 m wide set, until the NIS
+window re-initialised it. The EKFs (`sitan`, `sitan-bank`)
 report a small covariance before their linearisation has found the right basin, so the
 same test (no KL term for an EKF) calls them converged early while they are still
 hundreds of metres off; `sitan` then settles (≈ 2-3 m at the end), while the NIS-window

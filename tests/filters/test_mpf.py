@@ -137,6 +137,20 @@ def test_the_position_walk_spreads_a_collapsed_set_by_its_variance(small_mission
         np.testing.assert_allclose(moved.var(axis=0), expected, rtol=0.05)
 
 
+def test_a_too_sharp_update_is_split_into_stages_that_keep_particles():
+    rng = np.random.default_rng(6)
+    filt = Mpf(min_update_ess=100.0)
+    log_weight = np.full(5000, -np.log(5000))
+    gentle = -0.5 * rng.standard_normal(5000) ** 2 * 0.01
+    assert filt._stage_fraction(log_weight, gentle, 1.0) == 1.0  # kept whole
+    sharp = -0.5 * (rng.standard_normal(5000) * 300.0) ** 2  # a handful would win
+    a = filt._stage_fraction(log_weight, sharp, 1.0)
+    assert 0.0 < a < 0.2
+    w = np.exp(log_weight + a * sharp)
+    w /= w.sum()
+    assert 1.0 / np.sum(w**2) == pytest.approx(100.0, rel=0.01)
+
+
 def test_mpf_seeded_runs_repeat(small_mission):
     scen = small_mission("mpf-seed")
     grid = prepare_map(scen)

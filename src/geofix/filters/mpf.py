@@ -71,6 +71,14 @@ manoeuvres): the particles keep exploring around the terrain's peak, and the lin
 states learn a little less from each particle's motion. On the bundled scenarios it
 changed nothing beyond the Monte-Carlo spread except where the set had collapsed.
 
+An update sharper than a sparse set can represent (many beams on a prior lattice a
+fraction of a cell apart: a few particles would keep all the weight, by the luck of
+where the lattice fell) is applied in stages (progressive correction, Oudjane & Musso
+2000, "Progressive correction for regularized particle filters", FUSION): the largest
+fraction of the log-likelihood that leaves ``min_update_ess`` effective particles, then
+a resample whose copies are spread uniformly over the share of the particle they copy,
+and the likelihood read again at the moved particles, until the whole likelihood is in.
+
 The prior is the error state's (the simulator's second moments), read from
 ``problem.ins_model`` (:class:`~geofix.nav.errstate.InsErrorModel`, put there
 for simulated trials); the error state is built along the *indicated* track. The
@@ -190,6 +198,10 @@ class Mpf(RecursiveFilter):
     position_walk_cells : float
         Position random walk added to every prediction, map cells per square root of a
         second (see :meth:`predict`).
+    min_update_ess, progressive_stages, progressive_min_cells
+        Progressive correction of a too sharp update on a sparse set (:meth:`update`):
+        effective particles kept per stage, most stages, and the least share (map cells)
+        at which a set counts as sparse.
     ambiguity_radius_cells, ambiguity_mass : float
         Integrity flag: more than ``ambiguity_mass`` of the weight beyond that radius.
     """
@@ -208,6 +220,9 @@ class Mpf(RecursiveFilter):
     regularise: bool = True
     use_dvl: bool = True
     position_walk_cells: float = 2e-4
+    min_update_ess: float = 100.0
+    progressive_stages: int = 4
+    progressive_min_cells: float = 0.05
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
 
@@ -307,17 +322,72 @@ class Mpf(RecursiveFilter):
         )
 
     def update(self, state: MpfState, obs: Observation, grid: Grid, rng) -> MpfState:
-        """Terrain likelihood of every particle; the DVL's Kalman update when it aids."""
+        """Terrain likelihood of every particle; the DVL's Kalman update when it aids.
+
+        An update so sharp that it would leave fewer than ``min_update_ess`` effective
+        particles of a sparse set (its share wider than ``progressive_min_cells`` map
+        cells) is applied in stages (progressive correction, Oudjane & Musso 2000): the
+        largest fraction of the log-likelihood that keeps that many, then a resample
+        whose copies are spread over the share of the particle they copy (its linear
+        means following), the likelihood read again at the moved particles, and so on,
+        at most ``progressive_stages`` times before the rest is applied at once.
+        """
         log_weight = state.log_weight
         evaluations = state.evaluations
         if state.dvl is not None and np.isfinite(state.dvl[obs.index]).all():
             state, log_weight = self._dvl_update(state, state.dvl[obs.index], log_weight)
-        if np.isfinite(obs.values).any():
-            positions = state.positions
-            view = PfState(positions, state.log_weight, state.cell, spacing=state.spacing)
-            log_weight = log_weight + particle_log_likelihood(self, grid, view, obs, rng)
-            evaluations += positions.shape[0]
-        return replace(state, log_weight=log_normalised(log_weight), evaluations=evaluations)
+            state = replace(state, log_weight=log_normalised(log_weight))
+        if not np.isfinite(obs.values).any():
+            return replace(state, log_weight=log_normalised(log_weight))
+        remaining = 1.0
+        for stage in range(self.progressive_stages + 1):
+            view = PfState(state.positions, state.log_weight, state.cell, spacing=state.spacing)
+            ll = particle_log_likelihood(self, grid, view, obs, rng)
+            evaluations += ll.size
+            sparse = state.spacing > self.progressive_min_cells * state.cell
+            last = stage == self.progressive_stages or not sparse
+            share = remaining if last else self._stage_fraction(state.log_weight, ll, remaining)
+            log_weight = log_normalised(state.log_weight + share * ll)
+            remaining -= share
+            if remaining <= 0.0:
+                break
+            state = self._spread_copies(replace(state, log_weight=log_weight), rng)
+        return replace(state, log_weight=log_weight, evaluations=evaluations)
+
+    def _stage_fraction(self, log_weight: np.ndarray, ll: np.ndarray, remaining: float) -> float:
+        """Largest fraction (at most ``remaining``) of ``ll`` keeping ``min_update_ess``."""
+        wanted = min(self.min_update_ess, 0.5 * log_weight.size)
+
+        def ess(a: float) -> float:
+            return effective_sample_size(np.exp(log_normalised(log_weight + a * ll)))
+
+        if ess(remaining) >= wanted:
+            return remaining
+        low, high = 0.0, remaining
+        for _ in range(30):  # bisection: the ESS falls as the fraction grows
+            mid = 0.5 * (low + high)
+            low, high = (mid, high) if ess(mid) >= wanted else (low, mid)
+        return max(low, 1e-3 * remaining)
+
+    def _spread_copies(self, state: MpfState, rng) -> MpfState:
+        """Resample (same count) and spread each copy over its original's square share."""
+        count = state.dp.shape[0]
+        index = systematic_resample(state.weights, rng, count)
+        joint = np.hstack([state.dp, state.linear])
+        w = state.weights
+        spread = joint - w @ joint
+        cov = (spread * w[:, None]).T @ spread
+        jitter = state.spacing * (rng.random((count, 2)) - 0.5)
+        moved = joint[index]
+        moved[:, _P] += jitter
+        moved[:, _L] += _times(jitter, _regression(cov))
+        return replace(
+            state,
+            dp=moved[:, _P],
+            linear=moved[:, _L],
+            log_weight=np.full(count, -np.log(count)),
+            resamples=state.resamples + 1,
+        )
 
     def estimate(self, state: MpfState) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean ``(2,)`` and covariance ``(2, 2)`` of the positions, m and m^2."""
