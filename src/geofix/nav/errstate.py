@@ -13,7 +13,7 @@ Cramér–Rao bound (:mod:`geofix.evaluate.crlb`) and the marginalised particle 
 (:mod:`geofix.filters.mpf`) use the same matrices.
 
 ``mode: free`` -- a free inertial navigator (12 states)
-------------------------------------------------------
+---------------------------------------------------------
 ``[dp_x, dp_y, dv_x, dv_y, phi_x, phi_y, ba_x, ba_y, eps_x, eps_y, psi, eps_z]``: per
 level channel the Schuler loop of :mod:`geofix.nav.ins` (position, velocity, tilt,
 accelerometer bias, level gyro drift), plus the azimuth error ``psi`` (positive =
@@ -42,7 +42,7 @@ The slower cross-couplings (``Omega sin L`` between the tilts, ``Omega cos L phi
 ``psi``) are left out.
 
 ``mode: dvl`` -- DVL-aided dead reckoning (7 states)
----------------------------------------------------
+------------------------------------------------------
 ``[dp_x, dp_y, psi, eps_z, s, b_x, b_y]``: the position is the integral of the DVL
 velocity over ground, with a scale-factor error ``s`` (dimensionless, ``dvl.scale_error``)
 and a constant bias ``b`` (m/s, ``dvl.bias_m_s``), rotated into the local frame by the
