@@ -107,3 +107,18 @@ def test_the_genie_squared_error_averages_to_its_variance_over_prior_draws():
     assert np.mean(squared) == pytest.approx(np.mean(variance), rel=0.3)
     # a plane: the same every trial (to the grid's discretisation and +-5 sigma truncation)
     assert np.std(variance) < 1e-3 * np.mean(variance)
+
+
+def test_bad_settings_and_a_grid_beyond_the_budget_are_refused(monkeypatch):
+    from geofix.errors import ConfigError, GeofixError
+
+    with pytest.raises(ConfigError, match="max_nodes"):
+        AmbiguityGrid(max_nodes=1)
+    with pytest.raises(ConfigError, match="extent_sigmas"):
+        AmbiguityGrid(extent_sigmas=0.0)
+    xx, yy = np.meshgrid(np.arange(50) * 10.0, np.arange(50) * 10.0)
+    grid = Grid(0.1 * xx + 0.0 * yy, 0.0, 0.0, 10.0, 10.0)
+    trial = _trial(grid, 3, 30.0, (5.0, 5.0), 1.0, np.random.default_rng(5))
+    monkeypatch.setenv("GEOFIX_MEMORY_BUDGET", "1MB")
+    with pytest.raises(GeofixError, match="genie grid of 801 x 801 nodes"):
+        genie_track(trial, grid, 1.0)

@@ -50,8 +50,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from geofix.errors import ConfigError
 from geofix.maps.grid import Grid
 from geofix.measurement import node_grid_log_likelihood
+from geofix.memory import cells_bytes, check_allocation
 
 
 @dataclass(frozen=True)
@@ -72,6 +74,16 @@ class AmbiguityGrid:
     extent_sigmas: float = 5.0
     max_nodes: int = 801
     min_sd_nodes: float = 4.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.extent_sigmas) and self.extent_sigmas > 0):
+            raise ConfigError(
+                f"ambiguity grid: extent_sigmas must be > 0, got {self.extent_sigmas}"
+            )
+        if self.max_nodes < 3:
+            raise ConfigError(f"ambiguity grid: max_nodes must be at least 3, got {self.max_nodes}")
+        if not (np.isfinite(self.min_sd_nodes) and self.min_sd_nodes >= 0):
+            raise ConfigError(f"ambiguity grid: min_sd_nodes must be >= 0, got {self.min_sd_nodes}")
 
 
 def initial_offset_prior(trial, simulator_prior: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -147,6 +159,9 @@ def genie_track(
         return GenieTrack(variance, squared)
     sd = np.sqrt(values)
     half = max(settings.max_nodes // 2, 1)
+    nodes = 2 * half + 1
+    # the log-posterior, its weights and the likelihood of one sample, plus temporaries
+    check_allocation(cells_bytes(nodes, nodes, copies=6), f"genie grid of {nodes} x {nodes} nodes")
     steps = np.maximum(settings.extent_sigmas * sd / half, 1e-9)
     u, v = (np.arange(-half, half + 1) * s for s in steps)
     # prior log-density over the nodes (principal coordinates about the prior's mean)
