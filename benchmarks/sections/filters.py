@@ -59,11 +59,7 @@ def build(quick: bool) -> str:
         n = QUICK_TRIALS if quick else trials
         result = campaign(scen, [*FILTERS, *batch], trials=n, jobs=2)
         stats = _method_stats(result, scen)
-        crlb = {
-            **_bounds(result),
-            "ambiguity": ambiguity_track_bound(scen, n),
-            "ambiguity_simulator": ambiguity_track_bound(scen, n, simulator_prior=True),
-        }
+        crlb = {**_bounds(result), **ambiguity_track_bounds(scen, n)}
         peers = _peers(scen, QUICK_PEER_TRIALS if quick and peer_trials else peer_trials)
         parts.append(_scenario_table(label, n, stats, crlb))
         if peers:
@@ -129,29 +125,32 @@ def _bounds(result) -> dict:
     }
 
 
-def ambiguity_track_bound(scen, trials: int, simulator_prior: bool = False) -> float:
+def ambiguity_track_bounds(scen, trials: int) -> dict:
     """RMS along the track of the larger of the CRLB and the genie's MMSE, metres.
 
-    Trials ``0 .. trials-1`` simulated as the campaign does (the map in its storage
-    precision); the genie's squared errors (:func:`geofix.evaluate.ambiguity.genie_track`,
-    with the CRLB's prior or the simulator's own with ``simulator_prior``) beside the
-    error-state bound (:func:`geofix.evaluate.crlb.bound_track`), combined sample by
-    sample over the trials (:func:`geofix.evaluate.ambiguity.track_bound`).
+    Trials ``0 .. trials-1`` as the campaign simulates them
+    (:func:`geofix.evaluate.campaign.campaign_map`); the genie's squared errors
+    (:func:`geofix.evaluate.ambiguity.genie_track`) beside the error-state bound
+    (:func:`geofix.evaluate.crlb.bound_track`), combined sample by sample over the trials
+    (:func:`geofix.evaluate.ambiguity.track_bound`). ``ambiguity`` with the CRLB's prior,
+    ``ambiguity_simulator`` with the simulator's own prior of the start error.
     """
-    from geofix.evaluate._shared_map import as_storage, float32_within
     from geofix.evaluate.ambiguity import genie_track, track_bound
+    from geofix.evaluate.campaign import campaign_map
     from geofix.evaluate.crlb import bound_track, trial_beam_variance
-    from geofix.sim.simulate import prepare_map, simulate_trial
+    from geofix.sim.simulate import simulate_trial
 
-    noise = scen.sensor.noise_std
-    grid = as_storage(prepare_map(scen, float32_within(noise)), noise)
-    crlb, genie = [], []
+    grid = campaign_map(scen)
+    crlb: list = []
+    genie: dict[bool, list] = {False: [], True: []}
     for index in range(trials):
         trial = simulate_trial(scen, grid, index)
         beam_var = trial_beam_variance(trial)
         crlb.append(bound_track(trial, grid, beam_var) ** 2)
-        genie.append(genie_track(trial, grid, beam_var, simulator_prior=simulator_prior)[1])
-    return float(np.sqrt(np.mean(track_bound(crlb, genie))))
+        for prior, rows in genie.items():
+            rows.append(genie_track(trial, grid, beam_var, simulator_prior=prior).squared_error)
+    rms = {prior: float(np.sqrt(np.mean(track_bound(crlb, rows)))) for prior, rows in genie.items()}
+    return {"ambiguity": rms[False], "ambiguity_simulator": rms[True]}
 
 
 def _peers(scen, trials: int) -> dict | None:

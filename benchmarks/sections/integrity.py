@@ -103,13 +103,12 @@ def _genie_end(scen, trials: int, best: str, best_rms: float, crlb: float) -> st
     and its posterior mean's error on the same trials is that of the best estimator told
     the drift, on the very draws the filters met.
     """
-    from geofix.evaluate._shared_map import as_storage, float32_within
     from geofix.evaluate.ambiguity import AmbiguityGrid, genie_track
+    from geofix.evaluate.campaign import campaign_map
     from geofix.evaluate.crlb import trial_beam_variance
-    from geofix.sim.simulate import prepare_map, simulate_trial
+    from geofix.sim.simulate import simulate_trial
 
-    noise = scen.sensor.noise_std
-    grid = as_storage(prepare_map(scen, float32_within(noise)), noise)
+    grid = campaign_map(scen)
     settings = AmbiguityGrid(max_nodes=GENIE_END_NODES, min_sd_nodes=3.0)
     variance, squared = [], []
     for index in range(trials):

@@ -146,24 +146,20 @@ def node_ll(values, origin, cell, centre, axes, u, v, bcol, brow, measured, var,
     inside = _nodes_inside(values, origin, cell, centre, axes, u, v, bcol, brow)
     n1 = v.shape[0]
     buffer = np.empty((measured.shape[0], n1))
-    cols = np.empty(n1)
-    rows = np.empty(n1)
     for i in range(u.shape[0]):  # pragma: no cover - compiled
-        for j in range(n1):
-            cols[j], rows[j] = _node_cell(origin, cell, centre, axes, u, v, i, j)
-        _beam_major_reads(values, cols, rows, n1, bcol, brow, inside, buffer)
+        _node_row_reads(values, origin, cell, centre, axes, u, v, bcol, brow, i, inside, buffer)
         _beam_major_sums(buffer, n1, measured, var, off_map, out[i])
 
 
 @numba.njit(cache=True, nogil=True)
-def _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, i, p, inside):
-    """``p[i, k, j]``: the map read by beam ``k`` from node ``[i, j]``, for one row ``i``."""
+def _node_row_reads(values, origin, cell, centre, axes, u, v, bcol, brow, i, inside, out):
+    """``out[k, j]``: the map read by beam ``k`` from node ``[i, j]``, for one row ``i``."""
     n1 = v.shape[0]
     cols = np.empty(n1)
     rows = np.empty(n1)
     for j in range(n1):  # pragma: no cover - compiled
         cols[j], rows[j] = _node_cell(origin, cell, centre, axes, u, v, i, j)
-    _beam_major_reads(values, cols, rows, n1, bcol, brow, inside, p[i])
+    _beam_major_reads(values, cols, rows, n1, bcol, brow, inside, out)
 
 
 _REASSOC = {"reassoc"}
@@ -233,12 +229,12 @@ def node_ll_flattened(
     acc0 = acc1 = 0.0
     count0 = count1 = 0
     inside = _nodes_inside(values, origin, cell, centre, axes, u, v, bcol, brow)
-    _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, 0, p, inside)
+    _node_row_reads(values, origin, cell, centre, axes, u, v, bcol, brow, 0, inside, p[0])
     flat_p = p.reshape(n0, b * n1)
     for i in range(n0):
         if i + 1 < n0:
-            args = (values, origin, cell, centre, axes, u, v, bcol, brow, i + 1, p, inside)
-            _node_predictions(*args)
+            args = (values, origin, cell, centre, axes, u, v, bcol, brow, i + 1, inside)
+            _node_row_reads(*args, p[i + 1])
             s, c = _difference_sums(flat_p[i], flat_p[i + 1])
             acc0 += s
             count0 += c
@@ -338,7 +334,7 @@ def node_ll_local(
     """
     inside = _nodes_inside(values, origin, cell, centre, axes, u, v, bcol, brow)
     for i in range(u.shape[0]):
-        _node_predictions(values, origin, cell, centre, axes, u, v, bcol, brow, i, p, inside)
+        _node_row_reads(values, origin, cell, centre, axes, u, v, bcol, brow, i, inside, p[i])
     n1 = out.shape[1]
     for i in range(out.shape[0]):
         _local_term_sums(p[i], p[i + 1], p[i, :, 1:], n1, measured, var, off_map, out[i])

@@ -51,6 +51,8 @@ from typing import NamedTuple
 import numpy as np
 
 from geofix.errors import ConfigError
+from geofix.evaluate.crlb import trial_error_state
+from geofix.filters._grid_kernels import grid_moments
 from geofix.maps.grid import Grid
 from geofix.measurement import node_grid_log_likelihood
 from geofix.memory import cells_bytes, check_allocation
@@ -94,8 +96,6 @@ def initial_offset_prior(trial, simulator_prior: bool = False) -> tuple[np.ndarr
     with ``simulator_prior``, ``N(initial_offset, initial_std^2 I)`` of the trial's INS
     error model (indicated minus true position at the start).
     """
-    from geofix.evaluate.crlb import trial_error_state
-
     model = getattr(trial, "ins_model", None)
     if model is None:
         return np.zeros(2), float(trial.sigma_position[0]) ** 2 * np.eye(2)
@@ -192,14 +192,8 @@ def genie_track(
 
 def _grid_moments(log_post: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple:
     """``(mean (2,), cov (2, 2))`` of the normalised grid density, grid coordinates."""
-    w = np.exp(log_post - log_post.max())
-    w /= w.sum()
-    wu, wv = w.sum(axis=1), w.sum(axis=0)
-    mu, mv = wu @ u, wv @ v
-    cuu = wu @ (u - mu) ** 2
-    cvv = wv @ (v - mv) ** 2
-    cuv = (u - mu) @ w @ (v - mv)
-    return np.array([mu, mv]), np.array([[cuu, cuv], [cuv, cvv]])
+    mu_u, mu_v, c_uu, c_uv, c_vv = grid_moments(log_post, u, v)
+    return np.array([mu_u, mu_v]), np.array([[c_uu, c_uv], [c_uv, c_vv]])
 
 
 def track_bound(crlb_var, genie) -> np.ndarray:

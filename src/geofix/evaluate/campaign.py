@@ -223,9 +223,7 @@ def run_campaign(
     out = Path(out_dir)
     check_out_dir(out)
     simulate = importlib.import_module("geofix.sim.simulate")
-    noise = scenario.sensor.noise_std
-    grid = simulate.prepare_map(scenario, _shared_map.float32_within(noise))
-    grid = _shared_map.as_storage(grid, noise)
+    grid = campaign_map(scenario)
     check_methods_fit(parsed, simulate.simulate_trial(scenario, grid, 0))
     shash = scenario_hash(scenario)
     with ResultStore(out) as store:
@@ -252,6 +250,20 @@ def run_campaign(
     frame = _with_integrity(frame, infos)
     result = _finish(scenario, grid, frame, out, store.path, computed, infos)
     return dataclasses.replace(result, scenario_hash=shash)
+
+
+def campaign_map(scenario: Scenario) -> Grid:
+    """The scenario's map as a campaign holds it (and simulates its trials on).
+
+    Prepared once (:func:`geofix.sim.simulate.prepare_map`), read straight into float32
+    where that rounds no value by more than a hundredth of the sensor noise, and stored
+    so (:mod:`geofix.evaluate._shared_map`): ``simulate_trial(scenario, campaign_map(
+    scenario), i)`` is the campaign's trial ``i``.
+    """
+    simulate = importlib.import_module("geofix.sim.simulate")
+    noise = scenario.sensor.noise_std
+    grid = simulate.prepare_map(scenario, _shared_map.float32_within(noise))
+    return _shared_map.as_storage(grid, noise)
 
 
 def _no_progress(done: int, total: int) -> None:
@@ -654,6 +666,12 @@ class _Chunker:
         self.count += count
         self.seconds += seconds
 
+    def unpack(self, result: tuple[list[_Done], float]) -> list[_Done]:
+        """The results of a finished chunk (:func:`_pool_chunk`), its duration recorded."""
+        done, seconds = result
+        self.observe(len(done), seconds)
+        return done
+
     def size(self) -> int:
         """Tasks in the next chunk."""
         if self.count == 0 or self.seconds <= 0.0:
@@ -662,7 +680,7 @@ class _Chunker:
         size = min(MAX_CHUNK, max(1, int(CHUNK_TARGET_S / per_task + 1e-9)))
         if self.left is not None:
             size = min(size, max(1, self.left // (2 * self.jobs)))
-        return int(size)
+        return size
 
     def next(self) -> list[_Task]:
         """The next chunk (empty when the tasks are exhausted)."""
@@ -709,12 +727,13 @@ def _pool_results(
             try:
                 left = None if total is None else total - (first is not None)
                 chunker = _Chunker(tasks, left, jobs)
-                chunks = (chunker.next() for _ in range(jobs * _IN_FLIGHT_PER_WORKER))
-                pending = {submit(chunk) for chunk in chunks if chunk}
+                chunks = iter(chunker.next, [])  # sized as the results come in
+                limit = jobs * _IN_FLIGHT_PER_WORKER
+                results = _bounded(submit, chunks, limit, chunker.unpack)
                 yield None
                 if first is not None:
                     yield first
-                yield from _drain_chunks(submit, chunker, pending)
+                yield from results
             except BrokenProcessPool:
                 raise GeofixError(
                     "a worker process died (killed, or out of memory); finished trials are "
@@ -744,33 +763,25 @@ def _first_task_here(simulate_trial, scenario, grid, tasks: Iterator) -> tuple:
     return done, "fork" if _fork_is_safe() else "spawn"
 
 
-def _bounded(submit: Callable, tasks: Iterator, limit: int) -> Iterator[_Done]:
-    """Results of ``submit(task)`` futures, at most ``limit`` in flight, as they complete."""
-    pending = {submit(task) for task in itertools.islice(tasks, limit)}
-    yield from _drain(submit, tasks, pending)
+def _bounded(submit: Callable, works: Iterator, limit: int, unpack=None) -> Iterator:
+    """Submit the first ``limit`` works now; then results as they complete (:func:`_drain`).
+
+    At most ``limit`` futures are in flight. ``unpack`` turns a future's result into the
+    results it stands for (a chunk's tasks); by default the result itself.
+    """
+    pending = {submit(work) for work in itertools.islice(works, limit)}
+    return _drain(submit, works, pending, unpack)
 
 
-def _drain(submit: Callable, tasks: Iterator, pending: set) -> Iterator[_Done]:
-    """Results of the ``pending`` futures as they complete, one new task per result."""
+def _drain(submit: Callable, works: Iterator, pending: set, unpack=None) -> Iterator:
+    """Results of the ``pending`` futures as they complete, one new work per finished one."""
     while pending:
         finished, pending = wait(pending, return_when=FIRST_COMPLETED)
         for future in finished:
-            for task in itertools.islice(tasks, 1):
-                pending.add(submit(task))
-            yield future.result()
-
-
-def _drain_chunks(submit: Callable, chunker: _Chunker, pending: set) -> Iterator[_Done]:
-    """Results of the ``pending`` chunk futures as they complete, one new chunk per chunk."""
-    while pending:
-        finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-        for future in finished:
-            done, seconds = future.result()
-            chunker.observe(len(done), seconds)
-            chunk = chunker.next()
-            if chunk:
-                pending.add(submit(chunk))
-            yield from done
+            results = [future.result()] if unpack is None else unpack(future.result())
+            for work in itertools.islice(works, 1):
+                pending.add(submit(work))
+            yield from results
 
 
 def _run_dask(scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:

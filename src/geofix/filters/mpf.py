@@ -374,13 +374,9 @@ class Mpf(RecursiveFilter):
         count = state.dp.shape[0]
         index = systematic_resample(state.weights, rng, count)
         joint = np.hstack([state.dp, state.linear])
-        w = state.weights
-        spread = joint - w @ joint
-        cov = (spread * w[:, None]).T @ spread
+        _, cov = weighted_moments(joint, state.weights)
         jitter = state.spacing * (rng.random((count, 2)) - 0.5)
-        moved = joint[index]
-        moved[:, _P] += jitter
-        moved[:, _L] += _times(jitter, _regression(cov))
+        moved = _jittered(joint[index], jitter, cov)
         return replace(
             state,
             dp=moved[:, _P],
@@ -391,11 +387,7 @@ class Mpf(RecursiveFilter):
 
     def estimate(self, state: MpfState) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean ``(2,)`` and covariance ``(2, 2)`` of the positions, m and m^2."""
-        w = state.weights
-        positions = state.positions
-        mean = w @ positions
-        d = positions - mean
-        return mean, (d * w[:, None]).T @ d
+        return weighted_moments(state.positions, state.weights)
 
     def is_ambiguous(self, state: MpfState) -> bool:
         """More than ``ambiguity_mass`` of the weight beyond the radius around the mean."""
@@ -479,9 +471,7 @@ class Mpf(RecursiveFilter):
         count = self.particle_count(area, state.cell)
         joint = np.hstack([state.dp, state.linear])
         w = state.weights
-        mean = w @ joint
-        spread = joint - mean
-        cov = (spread * w[:, None]).T @ spread
+        mean, cov = weighted_moments(joint, w)
         index = systematic_resample(w, rng, count)
         joint = joint[index]
         linear_cov = state.cov
@@ -528,9 +518,8 @@ def near_gaussian(dp: np.ndarray, weights: np.ndarray) -> bool:
     bool
         True when the kurtosis lies in :data:`GAUSSIAN_KURTOSIS`.
     """
-    mean = weights @ dp
+    mean, cov = weighted_moments(dp, weights)
     d = dp - mean
-    cov = (d * weights[:, None]).T @ d
     if not np.linalg.det(cov) > 0:
         return False
     mahalanobis = np.einsum("mi,ij,mj->m", d, np.linalg.inv(cov), d)
@@ -551,10 +540,30 @@ def _roughen(joint: np.ndarray, cov: np.ndarray, spacing: float, rng) -> np.ndar
     their regression on the jitter in ``cov``, the set's ``(d, d)`` covariance.
     """
     jitter = spacing / np.sqrt(12.0) * rng.standard_normal((joint.shape[0], 2))
+    return _jittered(joint, jitter, cov)
+
+
+def _jittered(joint: np.ndarray, jitter: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``joint`` with ``dp`` moved by ``jitter`` ``(M, 2)``, the linear means following.
+
+    The linear means move by their regression on ``dp`` in ``cov`` (the set's ``(d, d)``
+    covariance), so a moved particle keeps the linear states its new position implies.
+    """
     out = joint.copy()
     out[:, _P] += jitter
     out[:, _L] += _times(jitter, _regression(cov))
     return out
+
+
+def weighted_moments(rows: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted mean ``(d,)`` and covariance ``(d, d)`` of ``rows`` ``(M, d)``.
+
+    ``weights`` ``(M,)`` are normalised; the covariance is the weighted second central
+    moment (no small-sample correction).
+    """
+    mean = weights @ rows
+    d = rows - mean
+    return mean, (d * weights[:, None]).T @ d
 
 
 def kernel_bandwidth(count: int, dim: int) -> float:
