@@ -103,6 +103,8 @@ def progress(done, total):
     if done and not first:
         first.append(time.perf_counter())
         print(f"FIRST {{first[0] - T0:.3f}}", flush=True)
+    if done and done == total:
+        print(f"LAST {{time.perf_counter() - T0:.3f}}", flush=True)
 scen = load_scenario(Path({scenario!r}))
 campaign.run_campaign(scen, ["tercom:window_sigma=3"], trials={trials}, jobs={jobs},
                       out_dir={out!r}, progress=progress)
@@ -112,7 +114,7 @@ print(f"CPU {{t[0] + t[1] + t[2] + t[3]:.3f}}", flush=True)
 """
 
 
-_MARKS = ("IMPORT", "FIRST", "DONE", "CPU")
+_MARKS = ("IMPORT", "FIRST", "LAST", "DONE", "CPU")
 #: Trials of the second scaling figure: long enough for the campaign's fixed costs (the
 #: map read, the store, the summary, starting the workers: about 0.1 s) to be amortised.
 LONG_TRIALS = 400
@@ -181,6 +183,7 @@ def watch_campaign(
         "first_result_s": first,
         "first_result_from_start_s": started,
         "wall_s": done,
+        "last_result_s": marks.get("LAST"),
         "cpu_s": marks.get("CPU"),
         "stopped": stopped,
     }
@@ -212,6 +215,7 @@ def scaling_figures(folder: Path, trials: int = 40, pairs: int = 3) -> dict:
             runs[jobs].append(watch_campaign(scen, jobs, trials, out, 1800.0, memory=False))
     ratios = [a["wall_s"] / b["wall_s"] for a, b in zip(runs[1], runs[2], strict=True)]
     return {
+        **serial_share(runs[1]),
         "trials": trials,
         "jobs1_wall_s": [r["wall_s"] for r in runs[1]],
         "jobs2_wall_s": [r["wall_s"] for r in runs[2]],
@@ -220,6 +224,22 @@ def scaling_figures(folder: Path, trials: int = 40, pairs: int = 3) -> dict:
         "speedup": float(np.median(ratios)),
         "speedup_spread": [min(ratios), max(ratios)],
     }
+
+
+def serial_share(one_worker: list[dict]) -> dict:
+    """What no worker count can shorten, from ``--jobs 1`` runs (medians, seconds).
+
+    ``serial_s``: until the first result (the map read, the checks, the first trial with
+    its one-time kernel loads -- which the calling process runs before forking) plus after
+    the last (the summary). ``amdahl_limit``: the speed-up two workers would give if
+    everything between the first and the last result were shared perfectly between them,
+    ``wall / (serial + (wall - serial) / 2)``.
+    """
+    wall = float(np.median([r["wall_s"] for r in one_worker]))
+    serial = float(
+        np.median([r["first_result_s"] + r["wall_s"] - r["last_result_s"] for r in one_worker])
+    )
+    return {"serial_s": serial, "amdahl_limit": wall / (serial + 0.5 * (wall - serial))}
 
 
 def startup_figures(folder: Path, watch_s: float = 20.0) -> dict:

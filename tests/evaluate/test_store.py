@@ -129,3 +129,28 @@ def test_scenario_hash_of_missing_map_file_raises(tmp_path):
     )
     with pytest.raises(MapError, match=r"nowhere\.nc"):
         scenario_hash(missing)
+
+
+def test_uncommitted_rows_reach_other_readers_only_after_commit(tmp_path):
+    store = ResultStore(tmp_path)
+    store.record("tiny", "h1", "tercom", 0, _result(7.0), commit=False)
+    with ResultStore(tmp_path) as reader:
+        assert reader.done_keys("h1") == set()
+    store.commit()
+    with ResultStore(tmp_path) as reader:
+        assert reader.done_keys("h1") == {("tercom", 0)}
+    store.close()
+
+
+def test_a_batch_interrupted_by_ctrl_c_is_still_committed(tmp_path):
+    from geofix.evaluate.campaign import _Batches
+
+    store = ResultStore(tmp_path)
+    with pytest.raises(KeyboardInterrupt), _Batches(store) as batches:
+        for trial in range(3):
+            store.record("tiny", "h1", "tercom", trial, _result(1.0), commit=False)
+            batches.recorded()
+        raise KeyboardInterrupt
+    with ResultStore(tmp_path) as reader:
+        assert reader.done_keys("h1") == {("tercom", t) for t in range(3)}
+    store.close()

@@ -166,10 +166,25 @@ class ResultStore:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    @property
+    def connection(self) -> sqlite3.Connection:
+        """The store's SQLite connection (side tables of the layers above share it)."""
+        return self._db
+
+    def commit(self) -> None:
+        """Commit the results recorded with ``commit=False`` since the last commit."""
+        self._db.commit()
+
     def record(
-        self, scenario: str, shash: str, method: str, trial: int, result: TrialResult
+        self,
+        scenario: str,
+        shash: str,
+        method: str,
+        trial: int,
+        result: TrialResult,
+        commit: bool = True,
     ) -> None:
-        """Write (or overwrite) one trial's result and commit at once.
+        """Write (or overwrite) one trial's result; commit at once unless told not to.
 
         Parameters
         ----------
@@ -183,11 +198,15 @@ class ResultStore:
             Trial number.
         result : TrialResult
             The outcome (errors in metres, time in seconds).
+        commit : bool
+            False leaves the row in the open transaction until :meth:`commit` (a campaign
+            of quick trials commits a batch at a time: a commit costs as much as a trial).
         """
         row = _row(scenario, shash, method, trial, result)
         marks = ",".join("?" * len(row))
-        with self._db:
-            self._db.execute(f"INSERT OR REPLACE INTO trials VALUES ({marks})", row)
+        self._db.execute(f"INSERT OR REPLACE INTO trials VALUES ({marks})", row)
+        if commit:
+            self._db.commit()
 
     def done_keys(self, shash: str) -> set[tuple[str, int]]:
         """``(method, trial)`` pairs already stored for scenario hash ``shash``."""
