@@ -19,21 +19,6 @@ import numpy as np
 from geofix.maps.mapread import bilinear_at
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _read_inside(values, c, r):  # pragma: no cover - compiled
-    """``bilinear_at(values, c, r)`` where ``0 <= c < nx - 1`` and ``0 <= r < ny - 1``.
-
-    No checks: there the stencil is the same (``c0 = int(c)``), and so is every operation.
-    """
-    c0 = int(c)
-    r0 = int(r)
-    fc = c - c0
-    fr = r - r0
-    return (values[r0, c0] * (1 - fc) + values[r0, c0 + 1] * fc) * (1 - fr) + (
-        values[r0 + 1, c0] * (1 - fc) + values[r0 + 1, c0 + 1] * fc
-    ) * fr
-
-
 @numba.njit(cache=True, nogil=True)
 def _widen(bounds, c, r):  # pragma: no cover - compiled
     """Grow ``bounds`` ``[cmin, cmax, rmin, rmax]`` to hold the cell ``(c, r)``."""
@@ -66,17 +51,54 @@ def _all_inside(values, bounds, bcol, brow):  # pragma: no cover - compiled
 def _beam_major_reads(values, cols, rows, n, bcol, brow, inside, out):  # pragma: no cover
     """``out[k, i]``: the map read by beam ``k`` from fractional cell ``(cols[i], rows[i])``.
 
-    For ``i < n``, beam by beam (the inner loop over hypotheses vectorises). ``inside``:
-    every footprint is known to lie inside the stencil range (no checks).
+    For ``i < n``, beam by beam. ``inside``: every footprint is known to lie inside the
+    stencil range, and :func:`_read_beam_inside` reads without checks.
     """
-    for k in range(bcol.shape[0]):
-        bc, br = bcol[k], brow[k]
-        if inside:
-            for i in range(n):
-                out[k, i] = _read_inside(values, cols[i] + bc, rows[i] + br)
-        else:
+    if not inside:
+        for k in range(bcol.shape[0]):
+            bc, br = bcol[k], brow[k]
             for i in range(n):
                 out[k, i] = bilinear_at(values, cols[i] + bc, rows[i] + br)
+        return
+    flat = values.ravel()  # a view: map values are C-contiguous (Grid stores them so)
+    first = np.empty(n, np.uint64)
+    weights = np.empty((2, n))
+    for k in range(bcol.shape[0]):
+        reads = out[k]
+        _read_beam_inside(
+            flat, values.shape[1], cols, rows, n, bcol[k], brow[k], first, weights, reads
+        )
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _read_beam_inside(flat, nx, cols, rows, n, bc, br, first, weights, out):  # pragma: no cover
+    """``out[i] = bilinear_at(values, cols[i] + bc, rows[i] + br)`` for ``i < n``.
+
+    Every footprint lies inside the stencil range (``0 <= c < nx - 1``, ``0 <= r < ny -
+    1``): there the stencil is the same (truncation is ``int``'s for ``c >= 0``) and so is
+    every operation, without checks. Two loops: the first (stencil corners and weights,
+    arithmetic only) vectorises; the second reads through unsigned flat indices, which
+    carry no negative-index wraparound. Together half the time of one loop of checked
+    reads (2.0 against 3.8 ns a read on 33 beams x 61 nodes). ``first`` ``(>= n,)`` uint64
+    and ``weights`` ``(2, >= n)`` are scratch.
+    """
+    for i in range(n):
+        c = cols[i] + bc
+        r = rows[i] + br
+        c0 = np.int64(c)
+        r0 = np.int64(r)
+        weights[0, i] = c - c0
+        weights[1, i] = r - r0
+        first[i] = r0 * nx + c0
+    step = np.uint64(nx)
+    one = np.uint64(1)
+    for i in range(n):
+        q = first[i]
+        fc = weights[0, i]
+        fr = weights[1, i]
+        out[i] = (flat[q] * (1 - fc) + flat[q + one] * fc) * (1 - fr) + (
+            flat[q + step] * (1 - fc) + flat[q + step + one] * fc
+        ) * fr
 
 
 #: Hypotheses read per block before their likelihoods are summed in one call: a compiled

@@ -83,3 +83,35 @@ def test_support_half_extent_matches_numpy():
     want = np.abs((xy - point) @ directions).max(axis=0) + spacing.max()
     got = filt.support_half_extent(state, point, directions)
     np.testing.assert_allclose(got, want, rtol=RTOL)
+
+
+def _numpy_resample(log_weight, old, new, fallback, shape):
+    from scipy.ndimage import map_coordinates
+
+    old_shape = np.array(log_weight.shape)
+    xy = ops.node_positions(*new, shape)
+    log_density = log_weight - np.log(np.prod(old[2]))
+    frac = ((xy - old[0]) @ old[1]) / old[2] + 0.5 * (old_shape - 1)
+    inside = np.all((frac >= 0.0) & (frac <= old_shape - 1), axis=-1)
+    values = map_coordinates(log_density, np.moveaxis(frac, -1, 0), order=1, mode="nearest")
+    outside = np.minimum(ops.gaussian_log_density(xy, *fallback), log_density.min())
+    return ops.normalise(np.where(inside, values, outside) + np.log(np.prod(new[2])))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_resample_grid_matches_map_coordinates(seed):
+    rng = np.random.default_rng(seed)
+    lw = ops.normalise(_log_weight(rng))
+    old, new = _frame(rng), _frame(rng)
+    # the new grid overlaps the old one in part: nodes inside and outside it
+    new = (old[0] + rng.normal(0.0, 5.0, 2) * old[2], new[1], old[2] * rng.uniform(0.5, 2.0, 2))
+    fallback = (old[0] + rng.normal(0.0, 20.0, 2), np.array([[400.0, 50.0], [50.0, 100.0]]))
+    shape = (35, 21)
+    got = ops.resample_grid(lw, old, new, fallback, shape)
+    want = _numpy_resample(lw, old, new, fallback, shape)
+    frac = ((ops.node_positions(*new, shape) - old[0]) @ old[1]) / old[2] + 0.5 * (
+        np.array(lw.shape) - 1
+    )
+    inside = np.all((frac >= 0.0) & (frac <= np.array(lw.shape) - 1), axis=-1)
+    assert 0 < inside.sum() < inside.size
+    np.testing.assert_allclose(got, want, rtol=RTOL, atol=1e-12)

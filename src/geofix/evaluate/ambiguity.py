@@ -52,7 +52,7 @@ import numpy as np
 
 from geofix.errors import ConfigError
 from geofix.evaluate.crlb import trial_error_state
-from geofix.filters._grid_kernels import grid_moments
+from geofix.filters._grid_ops import grid_moments
 from geofix.maps.grid import Grid
 from geofix.measurement import node_grid_log_likelihood
 from geofix.memory import cells_bytes, check_allocation

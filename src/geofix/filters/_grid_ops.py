@@ -12,7 +12,6 @@ however peaked never underflows to an all-zero grid, and never produces NaN.
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import map_coordinates
 
 from geofix.filters import _grid_kernels as grid_kernels
 
@@ -39,8 +38,15 @@ def node_positions(centre, axes, spacing, shape) -> np.ndarray:
 
 
 def normalise(log_weight: np.ndarray) -> np.ndarray:
-    """Log-weights shifted so that they sum (in linear space) to one."""
-    return grid_kernels.normalised(np.ascontiguousarray(log_weight, dtype=float))
+    """Log-weights shifted so that they sum (in linear space) to one.
+
+    In numpy: its exponential is vectorised (AVX2/AVX-512), six times faster than the
+    scalar one a compiled loop calls, and a grid's exponentials are most of the work.
+    """
+    lw = np.asarray(log_weight, dtype=float)
+    top = lw.max()
+    shifted = lw - top
+    return shifted - np.log(np.exp(shifted).sum())
 
 
 def gaussian_log_density(positions, mean, cov) -> np.ndarray:
@@ -49,6 +55,18 @@ def gaussian_log_density(positions, mean, cov) -> np.ndarray:
     inv = np.linalg.inv(cov)
     quad = np.einsum("...i,ij,...j->...", d, inv, d)
     return -0.5 * quad - 0.5 * np.log(np.linalg.det(2.0 * np.pi * cov))
+
+
+def grid_moments(log_weight: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple:
+    """``(mu_u, mu_v, c_uu, c_uv, c_vv)`` of ``exp(log_weight)`` (normalised) along the axes.
+
+    ``u`` ``(N0,)``, ``v`` ``(N1,)``: node coordinates, metres; means in m, second central
+    moments in m^2, without the grid's resolution term. The exponentials are numpy's
+    (vectorised), the sums one compiled pass
+    (:func:`geofix.filters._grid_kernels.weight_moments`).
+    """
+    lw = np.asarray(log_weight, dtype=float)
+    return grid_kernels.weight_moments(np.exp(lw - lw.max()), u, v)
 
 
 def moments(log_weight, centre, axes, spacing, offsets=None) -> tuple[np.ndarray, np.ndarray]:
@@ -61,7 +79,7 @@ def moments(log_weight, centre, axes, spacing, offsets=None) -> tuple[np.ndarray
     """
     log_weight = np.asarray(log_weight, dtype=float)
     u, v = node_offsets(log_weight.shape, spacing) if offsets is None else offsets
-    mu_u, mu_v, c_uu, c_uv, c_vv = grid_kernels.grid_moments(log_weight, u, v)
+    mu_u, mu_v, c_uu, c_uv, c_vv = grid_moments(log_weight, u, v)
     resolution = np.asarray(spacing, float) ** 2 / 12.0
     local = np.array([[c_uu + resolution[0], c_uv], [c_uv, c_vv + resolution[1]]])
     return centre + axes @ np.array([mu_u, mu_v]), axes @ local @ axes.T
@@ -113,12 +131,19 @@ def convolve_log(log_weight: np.ndarray, kernels: tuple[np.ndarray, np.ndarray])
     The convolution runs in linear space on ``exp(log_weight - max)`` (two 1-D passes,
     exact sums of non-negative terms, mass leaving the grid is lost). Where that underflows
     to zero the result is bounded below by the node's own contribution,
-    ``log_weight + log(centre tap 0) + log(centre tap 1)``, which is finite. One compiled
-    call (:func:`geofix.filters._grid_kernels.convolve_log`).
+    ``log_weight + log(centre tap 0) + log(centre tap 1)``, which is finite. The passes
+    are one compiled call (:func:`geofix.filters._grid_kernels.correlate_separable`), the
+    exponentials and logarithms numpy's vectorised ones.
     """
     k0, k1 = (np.ascontiguousarray(k, dtype=float) for k in kernels)
     lw = np.ascontiguousarray(log_weight, dtype=float)
-    return grid_kernels.convolve_log(lw, k0, k1, float(np.finfo(float).tiny))
+    top = lw.max()
+    p = grid_kernels.correlate_separable(np.exp(lw - top), k0, k1)
+    floor = lw + (np.log(k0[k0.size // 2]) + np.log(k1[k1.size // 2]) - top)
+    with np.errstate(divide="ignore"):
+        log_p = np.log(np.maximum(p, np.finfo(float).tiny))
+    log_p[p <= 0.0] = -np.inf
+    return normalise(np.maximum(log_p, floor) + top)
 
 
 GridFrame = tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -151,13 +176,15 @@ def resample_grid(
     numpy.ndarray
         Normalised log-weights on ``new``, of ``shape``.
     """
-    old_shape = np.array(log_weight.shape)
-    xy = node_positions(*new, log_weight.shape if shape is None else shape)
-    log_density = log_weight - np.log(np.prod(old[2]))
-    frac = ((xy - old[0]) @ old[1]) / old[2] + 0.5 * (old_shape - 1)
-    inside = np.all((frac >= 0.0) & (frac <= old_shape - 1), axis=-1)
-    coords = np.moveaxis(frac, -1, 0)
-    values = map_coordinates(log_density, coords, order=1, mode="nearest")
-    outside = np.minimum(gaussian_log_density(xy, *fallback), log_density.min())
-    values = np.where(inside, values, outside)
+    u, v = node_offsets(log_weight.shape if shape is None else shape, new[2])
+    log_density = np.ascontiguousarray(log_weight, dtype=float) - np.log(np.prod(old[2]))
+    stacked_old = np.vstack([old[0], np.asarray(old[1]).T, old[2]]).astype(float)
+    mean, cov = (np.asarray(a, dtype=float) for a in fallback)
+    normaliser = -0.5 * np.log(np.linalg.det(2.0 * np.pi * cov))
+    stacked_fallback = np.vstack([mean, np.linalg.inv(cov), [normaliser, 0.0]])
+    new_axes = np.ascontiguousarray(new[1], dtype=float)
+    centre = np.asarray(new[0], dtype=float)
+    values = grid_kernels.resampled_log_density(
+        log_density, stacked_old, centre, new_axes, u, v, stacked_fallback
+    )
     return normalise(values + np.log(np.prod(new[2])))
