@@ -34,7 +34,7 @@ RUNS = (
         "source002_bank",
         "source 002, multibeam, 1 km cells, 30 km error",
         ("tercom", "sitan-bank"),
-        12,
+        30,  # as many as the bound table: the NEES of 12 trials moved 0.8-1.3 with the seed
         0,
     ),
 )
