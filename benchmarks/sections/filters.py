@@ -133,7 +133,9 @@ def ambiguity_track_bounds(scen, trials: int) -> dict:
     (:func:`geofix.evaluate.ambiguity.genie_track`) beside the error-state bound
     (:func:`geofix.evaluate.crlb.bound_track`), combined sample by sample over the trials
     (:func:`geofix.evaluate.ambiguity.track_bound`). ``ambiguity`` with the CRLB's prior,
-    ``ambiguity_simulator`` with the simulator's own prior of the start error.
+    ``ambiguity_simulator`` with the simulator's own prior of the start error;
+    ``resolved`` and ``resolved_simulator``: the share of the trials' samples where the
+    genie's grid resolves the posterior (elsewhere the CRLB stands alone).
     """
     from geofix.evaluate.ambiguity import genie_track, track_bound
     from geofix.evaluate.campaign import campaign_map
@@ -150,7 +152,13 @@ def ambiguity_track_bounds(scen, trials: int) -> dict:
         for prior, rows in genie.items():
             rows.append(genie_track(trial, grid, beam_var, simulator_prior=prior).squared_error)
     rms = {prior: float(np.sqrt(np.mean(track_bound(crlb, rows)))) for prior, rows in genie.items()}
-    return {"ambiguity": rms[False], "ambiguity_simulator": rms[True]}
+    share = {prior: float(np.isfinite(np.asarray(rows)).mean()) for prior, rows in genie.items()}
+    return {
+        "ambiguity": rms[False],
+        "ambiguity_simulator": rms[True],
+        "resolved": share[False],
+        "resolved_simulator": share[True],
+    }
 
 
 def _peers(scen, trials: int) -> dict | None:
@@ -201,10 +209,19 @@ def _scenario_table(label: str, trials: int, stats: dict, crlb: dict) -> str:
     bounds = (
         f"error-state CRLB on the end-point RMS {fmt(crlb['crlb'], 1)} m, along the track "
         f"{fmt(crlb['track'], 1)} m, along the track with the genie's MMSE "
-        f"{fmt(crlb['ambiguity'], 1)} m (with the simulator's prior of the start error "
-        f"{fmt(crlb['ambiguity_simulator'], 1)} m); random-walk bound {fmt(crlb['rw'], 1)} m"
+        f"{fmt(crlb['ambiguity'], 1)} m{_resolved(crlb, 'resolved')} (with the simulator's "
+        f"prior of the start error {fmt(crlb['ambiguity_simulator'], 1)} m"
+        f"{_resolved(crlb, 'resolved_simulator')}); random-walk bound {fmt(crlb['rw'], 1)} m"
     )
     return f"**{label}** ({trials} trials; {bounds}):\n\n" + md_table(header, rows)
+
+
+def _resolved(crlb: dict, key: str) -> str:
+    """``", the genie's grid resolving 12 % of the samples"`` (empty when not measured)."""
+    share = crlb.get(key)
+    if share is None:
+        return ""
+    return f", the genie's grid resolving {100 * share:.0f} % of the samples"
 
 
 def _or_nan(value) -> float:

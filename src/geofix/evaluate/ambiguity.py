@@ -30,8 +30,17 @@ bilinear read (the simulator's, :data:`geofix.sim.sensing.TRUTH_READ`) at
 ``truth_k + e_0 - e`` (the unlagged readings of a lagged gravimeter: the lag is a known
 invertible map, the information is the same). The grid is trusted while the posterior
 spans many nodes (its standard deviation at least ``min_sd_nodes`` node steps along both
-principal axes); from the first sample where it does not, :func:`genie_track` reports
-NaN and stops (the posterior only narrows, and a narrow posterior is the CRLB's domain).
+principal axes) and while it samples the likelihood finely enough: each mode of the
+posterior is about as wide as the likelihood at the truth, ``w_k = lambda_max(J_0..k)^-1/2``
+with ``J`` the Fisher information of the readings so far (the CRLB's, without the prior),
+and a Gaussian mode of standard deviation ``w`` sampled at nodes ``h`` apart carries the
+mass of its integral to within ``2 exp(-2 pi^2 w^2 / h^2)`` (Poisson summation: 1.4 % at
+``w = h / 2``, ``min_width_steps``). Below that the sampled posterior aliases -- its modes'
+weights, so its mean, change with the node step (on ``source002_bank``, 16 beams with
+62 m wide modes against 300 m nodes, the first errors moved by a factor of two between
+401, 801 and 1601 nodes per axis) -- and it says nothing. From the first sample where
+either fails, :func:`genie_track` reports NaN and stops (the posterior only narrows, and
+a narrow posterior is the CRLB's domain).
 Per trial it gives the posterior variance and the squared error of the posterior mean;
 either, averaged over trials, estimates the genie's MMSE. The squared error is the one to
 hold a filter's errors against: on the same trials both follow the same draws of the
@@ -51,7 +60,7 @@ from typing import NamedTuple
 import numpy as np
 
 from geofix.errors import ConfigError
-from geofix.evaluate.crlb import trial_error_state
+from geofix.evaluate.crlb import trial_error_state, trial_information
 from geofix.filters._grid_ops import grid_moments
 from geofix.maps.grid import Grid
 from geofix.measurement import node_grid_log_likelihood
@@ -71,11 +80,16 @@ class AmbiguityGrid:
     min_sd_nodes : float
         Least posterior standard deviation, in node steps along both principal axes, for
         the grid's variance to be reported.
+    min_width_steps : float
+        Least width of the likelihood at the truth (``lambda_max(J)^-1/2``, the
+        information of the readings so far), in node steps, for the grid to be trusted:
+        below it the sampled posterior aliases (see the module text).
     """
 
     extent_sigmas: float = 5.0
     max_nodes: int = 801
     min_sd_nodes: float = 4.0
+    min_width_steps: float = 0.5
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.extent_sigmas) and self.extent_sigmas > 0):
@@ -86,6 +100,10 @@ class AmbiguityGrid:
             raise ConfigError(f"ambiguity grid: max_nodes must be at least 3, got {self.max_nodes}")
         if not (np.isfinite(self.min_sd_nodes) and self.min_sd_nodes >= 0):
             raise ConfigError(f"ambiguity grid: min_sd_nodes must be >= 0, got {self.min_sd_nodes}")
+        if not (np.isfinite(self.min_width_steps) and self.min_width_steps >= 0):
+            raise ConfigError(
+                f"ambiguity grid: min_width_steps must be >= 0, got {self.min_width_steps}"
+            )
 
 
 def initial_offset_prior(trial, simulator_prior: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -171,7 +189,10 @@ def genie_track(
     start_error = np.asarray(trial.indicated[0], float) - np.asarray(trial.truth[0], float)
     truth_offset = axes.T @ (start_error - mean)  # the true e_0 in the grid's coordinates
     var = np.broadcast_to(np.asarray(beam_var, float), (trial.offsets.shape[0],))
+    resolvable = likelihood_width(trial, grid, var) >= settings.min_width_steps * steps.max()
     for k in range(trial.truth.shape[0]):
+        if not resolvable[k]:
+            break
         if np.isfinite(readings[k]).any():
             # node [i, j] is e_0 = mean + (u_i, v_j) along the prior's axes, at
             # truth_k + (true e_0) - e_0
@@ -194,6 +215,20 @@ def _grid_moments(log_post: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple:
     """``(mean (2,), cov (2, 2))`` of the normalised grid density, grid coordinates."""
     mu_u, mu_v, c_uu, c_uv, c_vv = grid_moments(log_post, u, v)
     return np.array([mu_u, mu_v]), np.array([[c_uu, c_uv], [c_uv, c_vv]])
+
+
+def likelihood_width(trial, grid: Grid, beam_var) -> np.ndarray:
+    """``(n,)`` width of the likelihood of the readings ``0..k`` at the truth, metres.
+
+    ``lambda_max(J_0 + ... + J_k)^-1/2`` with ``J`` the per-sample Fisher information of
+    the initial offset given the drift (:func:`geofix.evaluate.crlb.trial_information`:
+    map gradients at the true footprints, per-beam variance ``beam_var``); ``inf`` while
+    no reading carries information.
+    """
+    info = np.cumsum(trial_information(trial, grid, beam_var), axis=0)
+    largest = np.linalg.eigvalsh(0.5 * (info + np.swapaxes(info, 1, 2)))[:, -1]
+    with np.errstate(divide="ignore"):
+        return np.where(largest > 0, 1.0 / np.sqrt(np.maximum(largest, 0.0)), np.inf)
 
 
 def track_bound(crlb_var, genie) -> np.ndarray:
