@@ -12,7 +12,8 @@ TITLE = "Beyond the sources — Cramér–Rao bound, integrity on flat terrain, 
 ORDER = 90
 
 BOUND_METHODS = ("tercom", "pmf", "pf", "mpf")
-BOUND_TRIALS, QUICK_BOUND_TRIALS = 30, 2
+BOUND_TRIALS, QUICK_BOUND_TRIALS = 60, 2
+TRACK_FACTOR = 1.3  # best filter's track RMS against crlb_track_m
 NAVO_TRIALS, QUICK_NAVO_TRIALS = 16, 2
 
 
@@ -51,7 +52,7 @@ def _bounds_part(trials: int, quick: bool) -> str:
 
     methods = [m for m in BOUND_METHODS if m in available_methods()]
     spread = 1.0 / math.sqrt(2.0 * trials)  # relative standard error of an RMS estimate
-    rows, checks, misses = [], [], []
+    rows, checks, misses, track_checks = [], [], [], []
     for scen in _bundled_scenarios(quick):
         summary = campaign(scen, methods, trials=trials, jobs=2).summary
         stats = summary.methods
@@ -60,6 +61,8 @@ def _bounds_part(trials: int, quick: bool) -> str:
         filters = [m for m in methods if m in FILTERS and ratio[m] is not None]
         best = min(filters, key=lambda m: ratio[m]) if filters else None
         checks.append((scen.name, best, ratio.get(best) if best else None, ratio))
+        track = _best_track(stats, summary.crlb_track_m)
+        track_checks.append((scen.name, *track))
         if best is not None and ratio[best] > 1.2:
             misses.append(_genie_end(scen, trials, best, rms[best], summary.crlb_m))
         rows.append(
@@ -71,6 +74,7 @@ def _bounds_part(trials: int, quick: bool) -> str:
                 fmt(summary.crlb_rw_m, 1),
                 *[fmt(rms[m], 1) for m in methods],
                 *[fmt(ratio[m], 2) for m in methods],
+                f"{fmt(track[1], 2)} (`{track[0]}`)" if track[0] else "-",
                 fmt(stats["mpf"].nees, 2) if "mpf" in stats else "-",
                 " / ".join(fmt(100 * (stats[m].false_fix_rate or 0), 0) for m in methods),
             ]
@@ -83,11 +87,37 @@ def _bounds_part(trials: int, quick: bool) -> str:
         "random-walk bound (m)",
         *[f"RMS `{m}` (m)" for m in methods],
         *[f"`{m}` ÷ CRLB" for m in methods],
+        "best track RMS ÷ CRLB track",
         "`mpf` NEES",
         f"false fixes % ({' / '.join(methods)})",
     ]
     text = prose("integrity_bounds", trials=trials, spread=f"{100 * spread:.0f}")
-    return text + md_table(header, rows) + _bound_verdict(checks, spread) + "".join(misses)
+    verdict = _bound_verdict(checks, spread) + _track_verdict(track_checks)
+    return text + md_table(header, rows) + verdict + "".join(misses)
+
+
+def _best_track(stats: dict, crlb_track: float | None) -> tuple:
+    """``(filter, ratio)``: the filter with the lowest track RMS, over ``crlb_track_m``."""
+    ratios = {
+        m: stats[m].track_rms_error_m / crlb_track
+        for m in FILTERS
+        if m in stats and stats[m].track_rms_error_m is not None and crlb_track
+    }
+    if not ratios:
+        return None, None
+    best = min(ratios, key=ratios.get)
+    return best, ratios[best]
+
+
+def _track_verdict(checks: list) -> str:
+    """Best filter's track RMS against ``crlb_track_m``, per scenario (goal 1.3)."""
+    done = [(n, m, r) for n, m, r in checks if r is not None]
+    within = [f"`{n}` {r:.2f} (`{m}`)" for n, m, r in done if r <= TRACK_FACTOR]
+    beyond = [f"`{n}` {r:.2f} (`{m}`)" for n, m, r in done if r > TRACK_FACTOR]
+    return (
+        f"**Best filter's track RMS ÷ `crlb_track_m`**: at most {TRACK_FACTOR} on "
+        f"{len(within)} of {len(done)} scenarios; above on {', '.join(beyond) or 'none'}.\n"
+    )
 
 
 #: The genie's grid at the end point: finer than the default, so that a posterior a few
