@@ -9,6 +9,7 @@ from geofix.evaluate.crlb import scenario_beam_variance, trial_crlb
 from geofix.evaluate.metrics import end_mahalanobis
 from geofix.evaluate.runner import method_rng, run_trial
 from geofix.filters.mpf import Mpf, kernel_bandwidth, near_gaussian
+from geofix.filters.pf import stage_fraction
 from geofix.methods import parse_method_spec
 from geofix.sim.scenario import scenario_from_dict
 from geofix.sim.simulate import prepare_map, simulate_trial
@@ -139,12 +140,11 @@ def test_the_position_walk_spreads_a_collapsed_set_by_its_variance(small_mission
 
 def test_a_too_sharp_update_is_split_into_stages_that_keep_particles():
     rng = np.random.default_rng(6)
-    filt = Mpf(min_update_ess=100.0)
     log_weight = np.full(5000, -np.log(5000))
     gentle = -0.5 * rng.standard_normal(5000) ** 2 * 0.01
-    assert filt._stage_fraction(log_weight, gentle, 1.0) == 1.0  # kept whole
+    assert stage_fraction(log_weight, gentle, 1.0, 100.0) == 1.0  # kept whole
     sharp = -0.5 * (rng.standard_normal(5000) * 300.0) ** 2  # a handful would win
-    a = filt._stage_fraction(log_weight, sharp, 1.0)
+    a = stage_fraction(log_weight, sharp, 1.0, 100.0)
     assert 0.0 < a < 0.2
     w = np.exp(log_weight + a * sharp)
     w /= w.sum()

@@ -99,10 +99,12 @@ from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.pf import (
     PfState,
     check_field_variance,
+    check_progressive,
     effective_sample_size,
     linear_weights,
     log_normalised,
     particle_log_likelihood,
+    stage_fraction,
     systematic_resample,
 )
 from geofix.maps.grid import Grid
@@ -241,6 +243,7 @@ class Mpf(RecursiveFilter):
                 f"mpf: position_walk_cells must be finite and >= 0, got {self.position_walk_cells}"
             )
         check_field_variance("mpf", self.field_variance)
+        check_progressive("mpf", self.min_update_ess, self.progressive_stages)
 
     # ------------------------------------------------------------------ protocol
     def match(self, problem: MatchProblem, rng: np.random.Generator):
@@ -346,28 +349,17 @@ class Mpf(RecursiveFilter):
             evaluations += ll.size
             sparse = state.spacing > self.progressive_min_cells * state.cell
             last = stage == self.progressive_stages or not sparse
-            share = remaining if last else self._stage_fraction(state.log_weight, ll, remaining)
+            share = (
+                remaining
+                if last
+                else stage_fraction(state.log_weight, ll, remaining, self.min_update_ess)
+            )
             log_weight = log_normalised(state.log_weight + share * ll)
             remaining -= share
             if remaining <= 0.0:
                 break
             state = self._spread_copies(replace(state, log_weight=log_weight), rng)
         return replace(state, log_weight=log_weight, evaluations=evaluations)
-
-    def _stage_fraction(self, log_weight: np.ndarray, ll: np.ndarray, remaining: float) -> float:
-        """Largest fraction (at most ``remaining``) of ``ll`` keeping ``min_update_ess``."""
-        wanted = min(self.min_update_ess, 0.5 * log_weight.size)
-
-        def ess(a: float) -> float:
-            return effective_sample_size(np.exp(log_normalised(log_weight + a * ll)))
-
-        if ess(remaining) >= wanted:
-            return remaining
-        low, high = 0.0, remaining
-        for _ in range(30):  # bisection: the ESS falls as the fraction grows
-            mid = 0.5 * (low + high)
-            low, high = (mid, high) if ess(mid) >= wanted else (low, mid)
-        return max(low, 1e-3 * remaining)
 
     def _spread_copies(self, state: MpfState, rng) -> MpfState:
         """Resample (same count) and spread each copy over its original's square share."""

@@ -139,6 +139,10 @@ class Pf(RecursiveFilter):
         Resample when ``ESS < resample_threshold * M`` (0.5, the common choice).
     roughening : float
         Gordon's roughening constant ``K`` (0.2 in Gordon et al. 1993); 0 switches it off.
+    min_update_ess, progressive_stages, progressive_min_cells
+        Progressive correction of a too sharp update on a sparse set (:meth:`update`):
+        effective particles kept per stage, most stages (0 switches it off), and the
+        least share (map cells) at which a set counts as sparse.
     ambiguity_radius_cells : float
         Radius around the fix, map cells, for the integrity flag.
     ambiguity_mass : float
@@ -167,6 +171,9 @@ class Pf(RecursiveFilter):
     field_variance: str = "global"
     resample_threshold: float = 0.5
     roughening: float = 0.2
+    min_update_ess: float = 100.0
+    progressive_stages: int = 4
+    progressive_min_cells: float = 0.05
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
 
@@ -175,6 +182,7 @@ class Pf(RecursiveFilter):
             raise ConfigError(
                 f"pf: particles must be at least 10 and at most max_particles, got {self.particles}"
             )
+        check_progressive("pf", self.min_update_ess, self.progressive_stages)
         if self.max_spacing_cells <= 0 or self.extent_sigmas <= 0:
             raise ConfigError("pf: max_spacing_cells and extent_sigmas must be positive")
         if not 0.0 <= self.resample_threshold <= 1.0 or self.roughening < 0:
@@ -234,15 +242,46 @@ class Pf(RecursiveFilter):
         return replace(state, particles=particles)
 
     def update(self, state: PfState, obs: Observation, grid: Grid, rng) -> PfState:
-        """Add every particle's measurement log-likelihood (all beams at once)."""
+        """Add every particle's measurement log-likelihood (all beams at once).
+
+        An update so sharp that it would leave fewer than ``min_update_ess`` effective
+        particles of a sparse set (its share wider than ``progressive_min_cells`` map
+        cells: the stratified prior lattice, or a resampled wide posterior) is applied in
+        stages (progressive correction, Oudjane & Musso 2000): the largest fraction of the
+        log-likelihood that keeps that many (:func:`stage_fraction`), then a resample
+        whose copies are spread uniformly over the share of the particle they copy, the
+        likelihood read again at the moved particles, and so on, at most
+        ``progressive_stages`` times before the rest is applied at once. Without it a
+        64-beam first ping on a half-cell lattice leaves one particle.
+        """
         if not np.isfinite(obs.values).any():
             return state
-        ll = particle_log_likelihood(self, grid, state, obs, rng)
-        log_weight = state.log_weight + ll
+        remaining, evaluations = 1.0, state.evaluations
+        for stage in range(self.progressive_stages + 1):
+            ll = particle_log_likelihood(self, grid, state, obs, rng)
+            evaluations += ll.size
+            sparse = state.spacing > self.progressive_min_cells * state.cell
+            if stage == self.progressive_stages or not sparse:
+                share = remaining
+            else:
+                share = stage_fraction(state.log_weight, ll, remaining, self.min_update_ess)
+            log_weight = log_normalised(state.log_weight + share * ll)
+            remaining -= share
+            if remaining <= 0.0:
+                break
+            state = self._spread_copies(replace(state, log_weight=log_weight), rng)
+        return replace(state, log_weight=log_weight, evaluations=evaluations)
+
+    def _spread_copies(self, state: PfState, rng) -> PfState:
+        """Resample (same count) and spread each copy uniformly over its original's share."""
+        count = state.particles.shape[0]
+        index = systematic_resample(state.weights, rng, count)
+        jitter = state.spacing * (rng.random((count, 2)) - 0.5)
         return replace(
             state,
-            log_weight=log_normalised(log_weight),
-            evaluations=state.evaluations + state.particles.shape[0],
+            particles=state.particles[index] + jitter,
+            log_weight=np.full(count, -np.log(count)),
+            resamples=state.resamples + 1,
         )
 
     def estimate(self, state: PfState) -> tuple[np.ndarray, np.ndarray]:
@@ -304,6 +343,36 @@ def log_normalised(log_weight: np.ndarray) -> np.ndarray:
     if total != 0:
         total = total / count
     return log_weight - (np.log1p(total) + np.log(count) + top)
+
+
+def stage_fraction(log_weight: np.ndarray, ll: np.ndarray, remaining: float, min_ess) -> float:
+    """Largest fraction (at most ``remaining``) of ``ll`` that keeps ``min_ess`` particles.
+
+    The effective sample size of ``log_weight + a ll`` falls as ``a`` grows; bisection
+    finds the largest ``a`` keeping ``min(min_ess, M / 2)``, never below
+    ``1e-3 remaining`` (so that the stages always progress).
+    """
+    wanted = min(float(min_ess), 0.5 * log_weight.size)
+
+    def ess(a: float) -> float:
+        return effective_sample_size(np.exp(log_normalised(log_weight + a * ll)))
+
+    if ess(remaining) >= wanted:
+        return remaining
+    low, high = 0.0, remaining
+    for _ in range(30):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if ess(mid) >= wanted else (low, mid)
+    return max(low, 1e-3 * remaining)
+
+
+def check_progressive(name: str, min_update_ess: float, stages: int) -> None:
+    """Refuse a progressive-correction setting that cannot work (ConfigError)."""
+    if not (np.isfinite(min_update_ess) and min_update_ess >= 1) or stages < 0:
+        raise ConfigError(
+            f"{name}: min_update_ess must be >= 1 and progressive_stages >= 0, "
+            f"got {min_update_ess} and {stages}"
+        )
 
 
 def effective_sample_size(weights: np.ndarray) -> float:
