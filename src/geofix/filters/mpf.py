@@ -104,7 +104,7 @@ from geofix.filters.pf import (
     linear_weights,
     log_normalised,
     particle_log_likelihood,
-    stage_fraction,
+    staged_update,
     systematic_resample,
 )
 from geofix.maps.grid import Grid
@@ -336,30 +336,20 @@ class Mpf(RecursiveFilter):
         at most ``progressive_stages`` times before the rest is applied at once.
         """
         log_weight = state.log_weight
-        evaluations = state.evaluations
         if state.dvl is not None and np.isfinite(state.dvl[obs.index]).all():
             state, log_weight = self._dvl_update(state, state.dvl[obs.index], log_weight)
             state = replace(state, log_weight=log_normalised(log_weight))
         if not np.isfinite(obs.values).any():
             return replace(state, log_weight=log_normalised(log_weight))
-        remaining = 1.0
-        for stage in range(self.progressive_stages + 1):
-            view = PfState(state.positions, state.log_weight, state.cell, spacing=state.spacing)
-            ll = particle_log_likelihood(self, grid, view, obs, rng)
-            evaluations += ll.size
-            sparse = state.spacing > self.progressive_min_cells * state.cell
-            last = stage == self.progressive_stages or not sparse
-            share = (
-                remaining
-                if last
-                else stage_fraction(state.log_weight, ll, remaining, self.min_update_ess)
+
+        def likelihood(current: MpfState) -> np.ndarray:
+            view = PfState(
+                current.positions, current.log_weight, current.cell, spacing=current.spacing
             )
-            log_weight = log_normalised(state.log_weight + share * ll)
-            remaining -= share
-            if remaining <= 0.0:
-                break
-            state = self._spread_copies(replace(state, log_weight=log_weight), rng)
-        return replace(state, log_weight=log_weight, evaluations=evaluations)
+            return particle_log_likelihood(self, grid, view, obs, rng)
+
+        state, reads = staged_update(self, state, likelihood, self._spread_copies, rng)
+        return replace(state, evaluations=state.evaluations + reads)
 
     def _spread_copies(self, state: MpfState, rng) -> MpfState:
         """Resample (same count) and spread each copy over its original's square share."""

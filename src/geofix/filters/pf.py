@@ -46,6 +46,7 @@ handed to the filter.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
@@ -256,21 +257,12 @@ class Pf(RecursiveFilter):
         """
         if not np.isfinite(obs.values).any():
             return state
-        remaining, evaluations = 1.0, state.evaluations
-        for stage in range(self.progressive_stages + 1):
-            ll = particle_log_likelihood(self, grid, state, obs, rng)
-            evaluations += ll.size
-            sparse = state.spacing > self.progressive_min_cells * state.cell
-            if stage == self.progressive_stages or not sparse:
-                share = remaining
-            else:
-                share = stage_fraction(state.log_weight, ll, remaining, self.min_update_ess)
-            log_weight = log_normalised(state.log_weight + share * ll)
-            remaining -= share
-            if remaining <= 0.0:
-                break
-            state = self._spread_copies(replace(state, log_weight=log_weight), rng)
-        return replace(state, log_weight=log_weight, evaluations=evaluations)
+
+        def likelihood(current: PfState) -> np.ndarray:
+            return particle_log_likelihood(self, grid, current, obs, rng)
+
+        state, reads = staged_update(self, state, likelihood, self._spread_copies, rng)
+        return replace(state, evaluations=state.evaluations + reads)
 
     def _spread_copies(self, state: PfState, rng) -> PfState:
         """Resample (same count) and spread each copy uniformly over its original's share."""
@@ -364,6 +356,32 @@ def stage_fraction(log_weight: np.ndarray, ll: np.ndarray, remaining: float, min
         mid = 0.5 * (low + high)
         low, high = (mid, high) if ess(mid) >= wanted else (low, mid)
     return max(low, 1e-3 * remaining)
+
+
+def staged_update(filt, state, likelihood: Callable, spread: Callable, rng) -> tuple:
+    """Apply ``likelihood(state)`` to the weights, in stages while the set is sparse.
+
+    The progressive correction of :meth:`Pf.update` and :meth:`~geofix.filters.mpf.Mpf.
+    update`: ``filt`` holds ``min_update_ess``, ``progressive_stages`` and
+    ``progressive_min_cells``; ``state`` its ``log_weight``, ``spacing`` and ``cell``;
+    ``spread(state, rng)`` resamples and spreads the copies between stages. Returns the
+    updated state and the number of likelihood evaluations.
+    """
+    remaining, reads = 1.0, 0
+    for stage in range(filt.progressive_stages + 1):
+        ll = likelihood(state)
+        reads += ll.size
+        sparse = state.spacing > filt.progressive_min_cells * state.cell
+        if stage == filt.progressive_stages or not sparse:
+            share = remaining
+        else:
+            share = stage_fraction(state.log_weight, ll, remaining, filt.min_update_ess)
+        state = replace(state, log_weight=log_normalised(state.log_weight + share * ll))
+        remaining -= share
+        if remaining <= 0.0:
+            break
+        state = spread(state, rng)
+    return state, reads
 
 
 def check_progressive(name: str, min_update_ess: float, stages: int) -> None:
