@@ -44,17 +44,14 @@ How to read it: `converged at` is the first ping the navigator's test passed (la
 posterior, a KL divergence to its moment-matched Gaussian of at most 0.2 nats). The
 point-mass filter passes it at the first ping -- one 432-beam swath over this terrain pins
 the position -- and stays within two cells throughout; its remaining error (≈ 15 m at the
-end) sits at the survey's ends, where the gridded cells hold fewer pings. `pf` passes it
-one ping later: one 64-beam update leaves a few surviving particles of its 25 m prior
-lattice, far from Gaussian (the KL term refuses it), sometimes a single one a cell or two
-off. `mpf` carries the whole INS error state (velocity, tilt, biases, heading error; the
-model of the INS numbers the replay simulates, `geofix replay` builds it from them) and
-applies an update that sharp in stages (progressive correction: a fraction of the
-likelihood that keeps 100 effective particles, the copies spread over their original's
-share, the likelihood read again, up to four times), so it too passes the test at the
-first ping; before the stages
-its first update kept one particle about two cells off, a 0 m wide set, until the NIS
-window re-initialised it. The EKFs (`sitan`, `sitan-bank`)
+end) sits at the survey's ends, where the gridded cells hold fewer pings. One 64-beam
+update is too sharp for a particle set on the 25 m prior lattice (applied at once it
+leaves one or a few particles, a cell or two off, far from Gaussian), so `pf` and `mpf`
+apply it in stages (progressive correction: a fraction of the likelihood that keeps 100
+effective particles, the copies spread over their original's share, the likelihood read
+again, up to four times) and pass the test at the first ping too. `mpf` carries the whole
+INS error state (velocity, tilt, biases, heading error; the model of the INS numbers the
+replay simulates, `geofix replay` builds it from them). The EKFs (`sitan`, `sitan-bank`)
 report a small covariance before their linearisation has found the right basin, so the
 same test (no KL term for an EKF) calls them converged early while they are still
 hundreds of metres off; `sitan` then settles (≈ 2-3 m at the end), while the NIS-window
