@@ -254,3 +254,38 @@ def test_the_one_pass_beam_read_agrees_with_the_checked_one(beams):
         assert outcomes[1] == outcomes[0] and "beam" in outcomes[0]
     else:
         np.testing.assert_array_equal(outcomes[1], outcomes[0])
+
+
+def test_a_connection_chooses_its_own_method_and_ins_model(exported):
+    mission, grid = exported
+    ins = {"initial_error_m": [100.0, 100.0], "velocity_error_m_s": 0.05}
+    with (
+        serve_in_thread(grid, "pmf") as (host, port),
+        Client(host, port) as own,
+        Client(host, port) as default,
+    ):
+        assert own.config(method="pf:particles=500")["method"] == "pf:particles=500"
+        served = feed_server(own, mission)
+        offline = feed_offline(Navigator(grid, "pf:particles=500"), mission)
+        assert [r["x"] for r in served] == [e.to_dict()["x"] for e in offline]
+        # the other connection keeps the server's method
+        assert (
+            feed_server(default, mission)[-1]["x"]
+            == (feed_offline(Navigator(grid, "pmf"), mission)[-1].to_dict()["x"])
+        )
+        # an error-state filter needs an INS model: refused without one, kept going
+        refused = own.config(method="mpf", check=False)
+        assert refused["ok"] is False and "INS" in refused["error"]
+        assert own.estimate()["pings"] == mission.n  # the pf navigator is still there
+        assert own.config(method="mpf:particles=500", ins=ins)["ok"]
+        assert own.estimate(check=False)["ok"] is False  # a new navigator: init first
+        mpf = feed_server(own, mission)
+        assert np.isfinite(mpf[-1]["x"])
+        for bad in (
+            {"type": "config", "method": 3},
+            {"type": "config", "colour": "red"},
+            {"type": "config", "method": "mpf", "ins": {"initial_error_m": "far"}},
+            {"type": "config", "method": "warp"},
+        ):
+            reply = own.request(bad, check=False)
+            assert reply["ok"] is False and "\n" not in reply["error"]

@@ -116,6 +116,18 @@ class Client:
         """``estimate``: the current estimate."""
         return self.request({"type": "estimate"}, **kw)
 
+    def config(self, method: str | None = None, ins=None, dvl=None, **kw) -> dict:
+        """``config``: this connection's own method and INS model (a new navigator).
+
+        ``ins`` / ``dvl`` are a scenario's ``ins:`` / ``dvl:`` blocks as dicts; keys left
+        out keep the server's.
+        """
+        message: dict = {"type": "config"}
+        for key, value in (("method", method), ("ins", ins), ("dvl", dvl)):
+            if value is not None:
+                message[key] = value
+        return self.request(message, **kw)
+
 
 def ping_message(t: float, beams, roll_deg=None, pitch_deg=None, as_array=False) -> dict:
     """The ``ping`` request for beams ``(b, 3)`` or ``(b, 4)`` (NaN values become null).

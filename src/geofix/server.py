@@ -12,11 +12,18 @@ line, in order. Requests (UTF-8 JSON objects, one per line, at most
   null for a missing beam), or rows ``[across_m, along_m, down_m, value]`` of body-frame
   beam vectors; optional ``roll_deg`` / ``pitch_deg`` (the vehicle attitude, levelling
   body-frame beams and the mounting offset: ``geofix.sensors.attitude``);
-- ``{"type": "estimate"}``.
+- ``{"type": "estimate"}``;
+- ``{"type": "config", "method": "mpf:particles=2000", "ins": {...}, "dvl": {...}}`` --
+  this connection's own method and INS error model (every key optional: ``method``
+  defaults to the server's, ``ins`` / ``dvl`` are a scenario's ``ins:`` and ``dvl:``
+  blocks, :class:`geofix.nav.spec.InsSpec` and :class:`~geofix.nav.spec.DvlSpec`,
+  without them the server's model). It starts a new navigator: an ``init`` follows.
 
 Replies: ``{"ok": true, "type": ..., "t", "x", "y", "cov": [[..], [..]], "status", "mle",
-"nis", "accepted", "pings", "rejected", "reinits"}`` (the estimate after the request), or
-``{"ok": false, "error": "one line naming the problem"}``. A malformed, out-of-order or
+"nis", "accepted", "pings", "rejected", "reinits"}`` (the estimate after the request;
+``{"ok": true, "type": "config", "method": spec}`` to a ``config``), or
+``{"ok": false, "error": "one line naming the problem"}`` (a refused ``config`` leaves
+the connection's navigator as it was). A malformed, out-of-order or
 oversized message gets an error reply and the connection stays usable; a client that
 disconnects mid-stream only ends its own connection.
 """
@@ -40,7 +47,7 @@ from geofix.maps.grid import Grid
 MAX_LINE_BYTES = 1 << 20
 """Longest request line, bytes (1 MiB: about 30 000 beams of three numbers)."""
 READ_CHUNK = 1 << 16
-REQUEST_TYPES = ("init", "nav", "ping", "estimate")
+REQUEST_TYPES = ("init", "nav", "ping", "estimate", "config")
 
 
 class RequestError(GeofixError):
@@ -206,6 +213,7 @@ class Session:
 
         self.navigator = Navigator(grid, method, settings, seed, map_error, ins_model)
         self.grid = grid
+        self._defaults = (method, settings, seed, map_error, ins_model)
         self._proj: Callable[[float, float], tuple[float, float]] | None = None  # lon, lat -> x, y
         self._line = b""
 
@@ -214,6 +222,8 @@ class Session:
         try:
             request = parse_request(line)
             self._line = line  # the ping's raw bytes prove plain numbers (_numbers_only)
+            if request["type"] == "config":
+                return {"ok": True, "type": "config", "method": self._config(request)}
             estimate = getattr(self, f"_{request['type']}")(request)
             return {"ok": True, "type": request["type"], **estimate.to_dict()}
         except GeofixError as exc:
@@ -258,6 +268,41 @@ class Session:
 
     def _estimate(self, request: dict):
         return self.navigator.estimate()
+
+    def _config(self, request: dict) -> str:
+        """A new navigator with this connection's method and INS model; its spec."""
+        from geofix.navigator import Navigator
+
+        unknown = sorted(set(request) - {"type", "method", "ins", "dvl"})
+        if unknown:
+            raise RequestError(f"config: unknown keys {', '.join(unknown)[:80]}")
+        method, settings, seed, map_error, ins_model = self._defaults
+        method = request.get("method", method)
+        if not isinstance(method, str) or not method:
+            raise RequestError("config: method must be a method specification string")
+        if "ins" in request or "dvl" in request:
+            ins_model = _ins_model(request.get("ins"), request.get("dvl"))
+        self.navigator = Navigator(self.grid, method, settings, seed, map_error, ins_model)
+        return method
+
+
+def _ins_model(ins, dvl):
+    """The INS error model of a ``config`` request's ``ins`` and ``dvl`` objects."""
+    from pydantic import ValidationError
+
+    from geofix.nav.errstate import InsErrorModel
+    from geofix.nav.spec import DvlSpec, InsSpec
+
+    if not isinstance(ins, dict) or not (dvl is None or isinstance(dvl, dict)):
+        raise RequestError("config: ins must be an object (and dvl an object or absent)")
+    try:
+        ins_spec = InsSpec.model_validate(ins)
+        dvl_spec = None if dvl is None else DvlSpec.model_validate(dvl)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        where = ".".join(str(part) for part in first["loc"])
+        raise RequestError(f"config: {where}: {first['msg']}"[:200]) from None
+    return InsErrorModel.from_specs(ins_spec, dvl_spec)
 
 
 async def _lines(reader: asyncio.StreamReader):
