@@ -136,6 +136,9 @@ class Pf(RecursiveFilter):
         the default here: on ``source002_bank`` the particle filters' lost trials come
         from resampling a two-mode posterior with a handful of particles in the true mode,
         which the local variance does not prevent (it moves the loss to other trials).
+        Over 1000 trials there, ``pf`` ends more than 1 km off on 7 (``roughening=0.5``:
+        6, ``resample_threshold=0.1``: 3, not a significant difference), ``pmf`` on 2 and
+        ``mpf`` on none.
     resample_threshold : float
         Resample when ``ESS < resample_threshold * M`` (0.5, the common choice).
     roughening : float
