@@ -36,11 +36,11 @@ with ``J`` the Fisher information of the readings so far (the CRLB's, without th
 and a Gaussian mode of standard deviation ``w`` sampled at nodes ``h`` apart carries the
 mass of its integral to within ``2 exp(-2 pi^2 w^2 / h^2)`` (Poisson summation: 1.4 % at
 ``w = h / 2``, ``min_width_steps``). Below that the sampled posterior aliases -- its modes'
-weights, so its mean, change with the node step (on ``source002_bank``, 16 beams with
-62 m wide modes against 300 m nodes, the first errors moved by a factor of two between
-401, 801 and 1601 nodes per axis) -- and it says nothing. From the first sample where
-either fails, :func:`genie_track` reports NaN and stops (the posterior only narrows, and
-a narrow posterior is the CRLB's domain).
+weights, so its mean, change with the node step (on ``source002_bank`` with the
+filters' prior, 16 beams make the modes narrower than the nodes from the first ping) --
+and it says nothing. From the first sample where either fails, :func:`genie_track`
+reports NaN and stops (the posterior only narrows, and a narrow posterior is the CRLB's
+domain).
 Per trial it gives the posterior variance and the squared error of the posterior mean;
 either, averaged over trials, estimates the genie's MMSE. The squared error is the one to
 hold a filter's errors against: on the same trials both follow the same draws of the

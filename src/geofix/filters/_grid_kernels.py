@@ -12,6 +12,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from geofix.maps.mapread import bilinear_at
+
 
 @numba.njit(cache=True, nogil=True)
 def weight_moments(weights, u, v):  # pragma: no cover - compiled
@@ -121,9 +123,10 @@ def resampled_log_density(log_density, old, new_centre, new_axes, u, v, fallback
     ``log_density`` ``(N0, N1)`` lies on the grid ``old`` = ``(centre (2,), axes (2, 2),
     spacing (2,))`` stacked as a ``(4, 2)`` array (centre, the two axis columns as rows,
     spacing); the new nodes sit at ``new_centre + u[i] new_axes[:, 0] + v[j] new_axes[:,
-    1]``. Inside the old grid: its bilinear interpolant (``scipy.ndimage.map_coordinates``,
-    ``order=1``); outside: ``min(fallback Gaussian, log_density.min())`` with ``fallback``
-    ``(4, 2)`` = mean, inverse covariance (two rows), ``(log normaliser, 0)``.
+    1]``. Inside the old grid: its bilinear interpolant
+    (:func:`geofix.maps.mapread.bilinear_at`, as ``scipy.ndimage.map_coordinates`` with
+    ``order=1``); outside: ``min(fallback Gaussian, log_density.min())`` with
+    ``fallback`` ``(4, 2)`` = mean, inverse covariance (two rows), ``(log normaliser, 0)``.
     """
     n0, n1 = log_density.shape  # pragma: no cover - compiled
     lowest = log_density.min()
@@ -136,24 +139,10 @@ def resampled_log_density(log_density, old, new_centre, new_axes, u, v, fallback
             f0 = (dx * old[1, 0] + dy * old[1, 1]) / old[3, 0] + 0.5 * (n0 - 1)
             f1 = (dx * old[2, 0] + dy * old[2, 1]) / old[3, 1] + 0.5 * (n1 - 1)
             if 0.0 <= f0 <= n0 - 1 and 0.0 <= f1 <= n1 - 1:
-                out[i, j] = _bilinear_node(log_density, f0, f1)
+                out[i, j] = bilinear_at(log_density, f1, f0)  # (column, row)
             else:
                 ex, ey = x - fallback[0, 0], y - fallback[0, 1]
                 quad = ex * (fallback[1, 0] * ex + fallback[1, 1] * ey)
                 quad += ey * (fallback[2, 0] * ex + fallback[2, 1] * ey)
                 out[i, j] = min(fallback[3, 0] - 0.5 * quad, lowest)
     return out
-
-
-@numba.njit(cache=True, nogil=True, inline="always")
-def _bilinear_node(grid, f0, f1):  # pragma: no cover - compiled
-    """Bilinear value of ``grid`` at fractional node ``(f0, f1)`` inside its range."""
-    i0 = min(int(f0), grid.shape[0] - 2) if grid.shape[0] > 1 else 0
-    j0 = min(int(f1), grid.shape[1] - 2) if grid.shape[1] > 1 else 0
-    t0 = f0 - i0
-    t1 = f1 - j0
-    i1 = min(i0 + 1, grid.shape[0] - 1)
-    j1 = min(j0 + 1, grid.shape[1] - 1)
-    return (grid[i0, j0] * (1 - t1) + grid[i0, j1] * t1) * (1 - t0) + (
-        grid[i1, j0] * (1 - t1) + grid[i1, j1] * t1
-    ) * t0

@@ -138,7 +138,7 @@ class Pf(RecursiveFilter):
         which the local variance does not prevent (it moves the loss to other trials).
         Over 1000 trials there, ``pf`` ends more than 1 km off on 7 (``roughening=0.5``:
         6, ``resample_threshold=0.1``: 3, not a significant difference), ``pmf`` on 2 and
-        ``mpf`` on none.
+        ``mpf`` on none (``benchmarks/sweep_filters.py source002_bank ... --trials 1000``).
     resample_threshold : float
         Resample when ``ESS < resample_threshold * M`` (0.5, the common choice).
     roughening : float

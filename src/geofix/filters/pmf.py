@@ -183,7 +183,7 @@ class Pmf(RecursiveFilter):
         13 km off; ``max_points=501`` (0.48 cells) loses none, the trial 6 % longer. 501
         as the default changes nothing measurable on source 000 / 001 (30 trials each)
         while their first updates, now on up to 501 x 501 nodes, make a trial up to 2.6
-        times longer.
+        times longer (``benchmarks/sweep_filters.py``).
     extent_sigmas : float
         Half-extent of the grid in posterior standard deviations along each principal
         axis (also of the prior grid, in prior sigmas).
