@@ -105,3 +105,29 @@ def small_mission():
     from geofix.sim.scenario import scenario_from_dict
 
     return lambda name, **changes: scenario_from_dict(small_mission_data(name, **changes))
+
+
+def northward_trial(grid, n: int, sigma0: float, start_error, noise: float, rng):
+    """A northward single-beam track through the middle of ``grid``, no drift (a Trial).
+
+    ``n`` samples 50 m apart from 30 % of the map's height, readings of ``grid`` with
+    white noise ``noise``, the indicated track ``start_error`` off, prior sigma ``sigma0``.
+    """
+    from geofix.sim.trial import Trial
+
+    ny, nx = grid.values.shape
+    x = grid.x0 + 0.5 * (nx - 1) * grid.dx
+    y = grid.y0 + 0.3 * (ny - 1) * grid.dy + 50.0 * np.arange(n)
+    truth = np.column_stack([np.full(n, x), y])
+    measured = grid.sample(truth[:, 0], truth[:, 1])[:, None] + noise * rng.standard_normal((n, 1))
+    return Trial(
+        truth=truth,
+        true_heading=np.zeros(n),
+        indicated=truth + np.asarray(start_error, float),
+        indicated_heading=np.zeros(n),
+        times=10.0 * np.arange(n),
+        measured=measured,
+        offsets=np.zeros((1, 2)),
+        sigma_position=np.full(n, sigma0),
+        noise_std=noise,
+    )

@@ -3,30 +3,10 @@
 import numpy as np
 import pytest
 
+from conftest import northward_trial
 from geofix.evaluate.ambiguity import AmbiguityGrid, genie_track, likelihood_width, track_bound
 from geofix.evaluate.crlb import recursive_bound, trial_information
 from geofix.maps.grid import Grid
-from geofix.sim.trial import Trial
-
-
-def _trial(grid: Grid, n: int, sigma0: float, start_error, noise: float, rng) -> Trial:
-    """A northward single-beam track through the middle of ``grid``, no drift."""
-    ny, nx = grid.values.shape
-    x = grid.x0 + 0.5 * (nx - 1) * grid.dx
-    y = grid.y0 + 0.3 * (ny - 1) * grid.dy + 50.0 * np.arange(n)
-    truth = np.column_stack([np.full(n, x), y])
-    measured = grid.sample(truth[:, 0], truth[:, 1])[:, None] + noise * rng.standard_normal((n, 1))
-    return Trial(
-        truth=truth,
-        true_heading=np.zeros(n),
-        indicated=truth + np.asarray(start_error, float),
-        indicated_heading=np.zeros(n),
-        times=10.0 * np.arange(n),
-        measured=measured,
-        offsets=np.zeros((1, 2)),
-        sigma_position=np.full(n, sigma0),
-        noise_std=noise,
-    )
 
 
 def test_on_a_plane_the_genie_variance_is_the_kalman_covariance():
@@ -36,7 +16,7 @@ def test_on_a_plane_the_genie_variance_is_the_kalman_covariance():
     xx, yy = np.meshgrid(np.arange(400) * 10.0, np.arange(400) * 10.0)
     grid = Grid(gx * xx + gy * yy, 0.0, 0.0, 10.0, 10.0)
     rng = np.random.default_rng(1)
-    trial = _trial(grid, 12, 60.0, (40.0, -25.0), 2.0, rng)
+    trial = northward_trial(grid, 12, 60.0, (40.0, -25.0), 2.0, rng)
     genie = genie_track(trial, grid, 4.0).variance
     info = trial_information(trial, grid, 4.0)
     kalman = np.trace(recursive_bound(info, np.zeros(12), 60.0**2), axis1=1, axis2=2)
@@ -52,7 +32,7 @@ def test_a_periodic_map_keeps_the_genie_far_above_the_crlb():
     grid = Grid(30.0 * np.sin(2 * np.pi * xx / 400.0), 0.0, 0.0, 10.0, 10.0)
     rng = np.random.default_rng(2)
     # a 20 m noise: each mode ~10 m wide after 20 readings, resolved by 10 m nodes
-    trial = _trial(grid, 20, 600.0, (150.0, 0.0), 20.0, rng)
+    trial = northward_trial(grid, 20, 600.0, (150.0, 0.0), 20.0, rng)
     genie, squared = genie_track(trial, grid, 400.0, AmbiguityGrid(max_nodes=601))
     info = trial_information(trial, grid, 400.0)
     crlb = np.trace(recursive_bound(info, np.zeros(20), 600.0**2), axis1=1, axis2=2)
@@ -74,7 +54,7 @@ def test_a_known_start_or_a_resolved_posterior_leaves_the_crlb():
     xx, yy = np.meshgrid(np.arange(300) * 10.0, np.arange(300) * 10.0)
     grid = Grid(np.sin(xx / 70.0) * np.cos(yy / 90.0) * 40.0, 0.0, 0.0, 10.0, 10.0)
     rng = np.random.default_rng(3)
-    trial = _trial(grid, 15, 30.0, (5.0, 5.0), 0.5, rng)
+    trial = northward_trial(grid, 15, 30.0, (5.0, 5.0), 0.5, rng)
     genie = genie_track(trial, grid, 0.25).variance
     # a rugged map and a sharp sensor: the posterior falls within a few nodes, and the
     # grid stops reporting from there on
@@ -100,7 +80,7 @@ def test_the_genie_squared_error_averages_to_its_variance_over_prior_draws():
     settings = AmbiguityGrid(max_nodes=401)
     squared, variance = [], []
     for _ in range(200):
-        trial = _trial(grid, 4, 60.0, 60.0 * rng.standard_normal(2), 2.0, rng)
+        trial = northward_trial(grid, 4, 60.0, 60.0 * rng.standard_normal(2), 2.0, rng)
         track = genie_track(trial, grid, 4.0, settings)
         squared.append(track.squared_error[-1])
         variance.append(track.variance[-1])
@@ -119,7 +99,7 @@ def test_bad_settings_and_a_grid_beyond_the_budget_are_refused(monkeypatch):
         AmbiguityGrid(extent_sigmas=0.0)
     xx, yy = np.meshgrid(np.arange(50) * 10.0, np.arange(50) * 10.0)
     grid = Grid(0.1 * xx + 0.0 * yy, 0.0, 0.0, 10.0, 10.0)
-    trial = _trial(grid, 3, 30.0, (5.0, 5.0), 1.0, np.random.default_rng(5))
+    trial = northward_trial(grid, 3, 30.0, (5.0, 5.0), 1.0, np.random.default_rng(5))
     monkeypatch.setenv("GEOFIX_MEMORY_BUDGET", "1MB")
     with pytest.raises(GeofixError, match="genie grid of 801 x 801 nodes"):
         genie_track(trial, grid, 1.0)
@@ -130,7 +110,7 @@ def test_a_likelihood_narrower_than_the_nodes_is_not_reported():
     # sampled weights, so the posterior mean, depend on where the nodes fall)
     xx, _ = np.meshgrid(np.arange(600) * 10.0, np.arange(600) * 10.0)
     grid = Grid(30.0 * np.sin(2 * np.pi * xx / 400.0), 0.0, 0.0, 10.0, 10.0)
-    trial = _trial(grid, 20, 600.0, (150.0, 0.0), 1.0, np.random.default_rng(2))
+    trial = northward_trial(grid, 20, 600.0, (150.0, 0.0), 1.0, np.random.default_rng(2))
     settings = AmbiguityGrid(max_nodes=601)
     width = likelihood_width(trial, grid, np.ones(1))
     step = settings.extent_sigmas * 600.0 / 300

@@ -297,3 +297,40 @@ def test_bound_differentiates_the_read_the_simulator_draws_the_truth_with():
     assert np.abs(bx - gx).max() > 1e-3
     # ... while the bound takes the simulator's read on either grid
     np.testing.assert_array_equal(trial_information(trial, cubic), trial_information(trial, linear))
+
+
+def test_the_simulator_prior_keeps_only_the_spread_of_the_start_offset():
+    from geofix.nav.errstate import InsErrorModel, error_state
+    from geofix.nav.spec import InsSpec
+    from geofix.nav.trajectory import true_trajectory
+
+    true = true_trajectory((0.0, 0.0), 60.0, 5.0, 10.0, 30, 2, 40.0, np.random.default_rng(0))
+    info = np.broadcast_to(np.diag([2e-4, 1e-4]), (true.n, 2, 2))
+    bounds = {}
+    for std in (0.0, 40.0):
+        spec = InsSpec(
+            initial_error_m=(300.0, -200.0),
+            initial_error_std_m=std,
+            velocity_error_m_s=0.1,
+            accel_bias_ug=30.0,
+        )
+        es = error_state(InsErrorModel.from_specs(spec), true.times, true.positions)
+        told = es.with_simulator_position_prior()
+        # the start position: the spread alone (0 for a fixed offset) against the
+        # second moments offset^2 + spread^2; every other state unchanged
+        np.testing.assert_allclose(np.diag(told.position_cov(told.prior_cov)), [std**2] * 2)
+        np.testing.assert_allclose(
+            np.diag(es.position_cov(es.prior_cov)), np.array([300.0, 200.0]) ** 2 + std**2
+        )
+        np.testing.assert_allclose(told.prior_cov[2:, 2:], es.prior_cov[2:, 2:])
+        bounds[std] = [
+            np.trace(e.position_cov(error_state_bound(e, info)), axis1=1, axis2=2)
+            for e in (es, told)
+        ]
+    # a narrower prior can only lower the bound; told a fixed offset, nothing is left at
+    # the start but the INS drift grows it afterwards
+    for moments, told in bounds.values():
+        assert (told <= moments * (1 + 1e-9)).all()
+    fixed = bounds[0.0][1]
+    assert fixed[0] < 1e-9 and fixed[-1] > 1.0
+    assert bounds[40.0][1][0] == pytest.approx(2 * 40.0**2, rel=0.2)

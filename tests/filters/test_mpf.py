@@ -228,3 +228,26 @@ def test_mpf_is_consistent_on_a_multibeam_survey_line():
     # 10 trials of a chi-square(2) mean: 2 +- 0.63 (1 sigma)
     assert 1.0 < nees < 3.5
     assert _rms(rows) < 1.4 * crlb
+
+
+def test_the_simulator_prior_centres_the_set_on_the_drawn_bias(small_mission):
+    from geofix.filters.mpf import weighted_moments
+
+    scen = small_mission(
+        "mpf-prior", ins={"initial_error_m": [300, -200], "initial_error_std_m": 40}
+    )
+    grid = prepare_map(scen)
+    problem = simulate_trial(scen, grid, 0).problem(grid)
+    rng = np.random.default_rng(5)
+    told = Mpf(particles=20000, prior="simulator").initialize(problem, rng)
+    mean, cov = weighted_moments(told.dp, told.weights)
+    # the simulator's N((300, -200), 40^2): the weighted set's mean within a few metres
+    np.testing.assert_allclose(mean, [300.0, -200.0], atol=2.0)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), [40.0, 40.0], rtol=0.05)
+    # the default holds zero mean and the second moments (sd 300 and 200 plus the 40)
+    moments = Mpf(particles=20000).initialize(problem, rng)
+    mean, cov = weighted_moments(moments.dp, moments.weights)
+    np.testing.assert_allclose(mean, [0.0, 0.0], atol=10.0)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), np.hypot([300, 200], 40), rtol=0.05)
+    with pytest.raises(ConfigError, match="prior"):
+        parse_method_spec("mpf:prior=oracle")

@@ -272,14 +272,20 @@ def information_update(p: np.ndarray, rows: np.ndarray) -> np.ndarray:
     return 0.5 * (p + p.T)
 
 
-def trial_error_state(trial):
-    """The trial's :class:`~geofix.nav.errstate.ErrorState` along its truth (None without)."""
+def trial_error_state(trial, simulator_prior: bool = False):
+    """The trial's :class:`~geofix.nav.errstate.ErrorState` along its truth (None without).
+
+    With ``simulator_prior`` the start position's prior is the simulator's own spread
+    about its known offset (:meth:`~geofix.nav.errstate.ErrorState.with_simulator_position_prior`)
+    instead of the zero-mean second moments.
+    """
     from geofix.nav.errstate import error_state
 
     model = getattr(trial, "ins_model", None)
     if model is None:
         return None
-    return error_state(model, trial.times, trial.truth)
+    es = error_state(model, trial.times, trial.truth)
+    return es.with_simulator_position_prior() if simulator_prior else es
 
 
 def trial_crlb(trial, grid: Grid, beam_var=None) -> TrialBound:
@@ -317,19 +323,25 @@ def _random_walk_traces(trial, info: np.ndarray) -> np.ndarray:
     return np.trace(rec, axis1=-2, axis2=-1)
 
 
-def _bound_traces(trial, info: np.ndarray, rw: np.ndarray) -> np.ndarray:
+def _bound_traces(
+    trial, info: np.ndarray, rw: np.ndarray, simulator_prior: bool = False
+) -> np.ndarray:
     """``(n,)`` traces of the error-state bound, m^2 (``rw`` without an INS model)."""
-    es = trial_error_state(trial)
+    es = trial_error_state(trial, simulator_prior)
     if es is None:
         return rw
     return np.trace(es.position_cov(error_state_bound(es, info)), axis1=-2, axis2=-1)
 
 
-def bound_track(trial, grid: Grid, beam_var=None) -> np.ndarray:
+def bound_track(trial, grid: Grid, beam_var=None, simulator_prior: bool = False) -> np.ndarray:
     """The bound on the RMS position error at every sample of a trial, metres.
 
     The error-state bound of :func:`trial_crlb` (the random-walk one for a trial without
-    an INS error model). Parameters are those of :func:`trial_crlb`.
+    an INS error model). Parameters are those of :func:`trial_crlb`; with
+    ``simulator_prior`` the start position's prior is the simulator's own spread about its
+    known offset (the bound for an estimator told the distribution the simulator draws
+    the start error from; 0 at the start of a fixed-offset trial), the other error
+    constants keeping their second moments.
 
     Returns
     -------
@@ -337,7 +349,7 @@ def bound_track(trial, grid: Grid, beam_var=None) -> np.ndarray:
         ``(n,)`` ``sqrt(trace(J_k^-1))``, metres.
     """
     info = trial_information(trial, grid, beam_var)
-    return np.sqrt(_bound_traces(trial, info, _random_walk_traces(trial, info)))
+    return np.sqrt(_bound_traces(trial, info, _random_walk_traces(trial, info), simulator_prior))
 
 
 def scenario_beam_variance(scenario, offsets) -> np.ndarray:

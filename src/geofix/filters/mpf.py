@@ -81,7 +81,10 @@ and the likelihood read again at the moved particles, until the whole likelihood
 
 The prior is the error state's (the simulator's second moments), read from
 ``problem.ins_model`` (:class:`~geofix.nav.errstate.InsErrorModel`, put there
-for simulated trials); the error state is built along the *indicated* track. The
+for simulated trials); the error state is built along the *indicated* track. With
+``prior=simulator`` the start position error's prior is instead the distribution the
+simulator draws it from (a bias and a spread), for comparison with the bound that holds
+for any estimator (:mod:`geofix.evaluate.zzb`). The
 estimate is the weighted mean and covariance of the particle positions.
 """
 
@@ -116,6 +119,9 @@ _P = slice(0, 2)
 _L = slice(2, None)
 #: Floor of the position variance of one prediction, m^2 (keeps ``S_pp`` invertible).
 MIN_STEP_VAR = 1e-6
+
+PRIORS = ("moments", "simulator")
+"""Priors of the start position error :class:`Mpf` can hold (its ``prior`` setting)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,6 +212,12 @@ class Mpf(RecursiveFilter):
         at which a set counts as sparse.
     ambiguity_radius_cells, ambiguity_mass : float
         Integrity flag: more than ``ambiguity_mass`` of the weight beyond that radius.
+    prior : str
+        The prior of the start position error: ``moments`` (zero mean, the simulator's
+        second moments: what a navigator that knows only the INS's error budget holds,
+        the default) or ``simulator`` (the very distribution the simulator draws it from,
+        ``N(initial_offset, initial_std^2)`` per axis: a filter told the INS's bias, to
+        measure against a bound that holds for any estimator on the trials).
     """
 
     name: ClassVar[str] = "mpf"
@@ -227,8 +239,11 @@ class Mpf(RecursiveFilter):
     progressive_min_cells: float = 0.05
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
+    prior: str = "moments"
 
     def __post_init__(self) -> None:
+        if self.prior not in PRIORS:
+            raise ConfigError(f"mpf: prior must be one of {', '.join(PRIORS)}, got {self.prior!r}")
         if self.particles < 10 or self.max_particles < self.particles:
             raise ConfigError(
                 f"mpf: particles must be at least 10 and at most max_particles, "
@@ -268,22 +283,27 @@ class Mpf(RecursiveFilter):
         if model is None:
             raise MatchError("mpf: the problem has no INS error model (problem.ins_model)")
         es = error_state(model, problem.times, problem.indicated)
+        mean = np.zeros(2)
+        if self.prior == "simulator":
+            es = es.with_simulator_position_prior()
+            mean = np.asarray(model.initial_offset, dtype=float)
         cell = problem.grid.cell_size
         p0 = es.prior_cov
         p0[_P, _P] += (1e-3 * cell) ** 2 * np.eye(2)
         sd = np.sqrt(np.diag(p0[_P, _P]))
-        dp, h = self._stratified(sd, cell, rng)
+        dev, h = self._stratified(sd, cell, rng)
+        dp = mean + dev
         start = np.asarray(problem.indicated[0], dtype=float)
         if not np.isfinite(
             predict_measurements(problem.grid, start - dp, 0.0, np.zeros((1, 2)))
         ).any():
             raise MatchError("mpf: the prior particles lie entirely off the map")
         inv = np.linalg.inv(p0[_P, _P])
-        log_weight = -0.5 * np.einsum("mi,ij,mj->m", dp, inv, dp)
+        log_weight = -0.5 * np.einsum("mi,ij,mj->m", dev, inv, dev)
         gain = p0[_L, _P] @ inv
         return MpfState(
             dp=dp,
-            linear=_times(dp, gain),
+            linear=_times(dev, gain),
             cov=_sym(p0[_L, _L] - gain @ p0[_P, _L]),
             log_weight=log_normalised(log_weight),
             indicated=start,

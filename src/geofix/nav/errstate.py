@@ -264,6 +264,19 @@ class ErrorState:
         """``(d, d)`` prior covariance ``T_0 diag(E[z^2]) T_0^T``."""
         return (self.prior_factor * self.prior_moments) @ self.prior_factor.T
 
+    def with_simulator_position_prior(self) -> ErrorState:
+        """The same model whose start position prior is the simulator's own spread.
+
+        The simulator draws the start position error as ``initial_offset`` plus a normal
+        spread of ``initial_std`` per axis: an estimator told that distribution holds the
+        offset as known and the spread as its only uncertainty. The second moments of the
+        draws ``p_x, p_y`` become ``initial_std^2`` (0 for a fixed offset); every other
+        draw keeps its second moment.
+        """
+        moments = self.prior_moments.copy()
+        moments[:2] = self.model.initial_std**2
+        return replace(self, prior_moments=moments)
+
     def position_cov(self, cov: np.ndarray) -> np.ndarray:
         """``H P H^T`` of ``(..., d, d)`` state covariances, m^2."""
         h = self.position_map
