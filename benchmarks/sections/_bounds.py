@@ -16,11 +16,11 @@ import numpy as np
 PRIORS = {"": False, "_simulator": True}
 
 
-def trial_bounds(scen, trials: int, genie: bool = False) -> dict:
+def trial_bounds(scen, trials: int, genie: tuple[str, ...] = ()) -> dict:
     """``{name: (trials, n) array}``, m^2, for trials ``0 .. trials-1`` as simulated.
 
-    Keys ``crlb``, ``zzb`` and, with ``genie``, ``genie`` (NaN where its grid no longer
-    resolves the posterior); each also with the suffix ``_simulator``.
+    Keys ``crlb`` and ``zzb``, each also with the suffix ``_simulator``; ``genie`` plus
+    each suffix named in ``genie`` (NaN where its grid no longer resolves the posterior).
     """
     from geofix.evaluate.ambiguity import genie_track
     from geofix.evaluate.campaign import campaign_map
@@ -40,27 +40,37 @@ def trial_bounds(scen, trials: int, genie: bool = False) -> dict:
             rows.setdefault(f"zzb{suffix}", []).append(
                 zzb_track(trial, grid, beam_var, simulator_prior=prior)
             )
-            if genie:
+            if suffix in genie:
                 rows.setdefault(f"genie{suffix}", []).append(
                     genie_track(trial, grid, beam_var, simulator_prior=prior).squared_error
                 )
     return {key: np.asarray(value, float) for key, value in rows.items()}
 
 
-def track_bound_rms(bounds: dict, suffix: str = "", genie: bool = False) -> float:
-    """RMS along the track of the sample-by-sample bound, metres.
+def per_sample_bound(bounds: dict, suffix: str = "") -> np.ndarray:
+    """``(n,)`` the bound on the mean-square error at every sample, m^2.
 
-    At each sample the mean over trials of the larger of the CRLB and the ZZB (both with
-    the prior ``suffix``), and with ``genie`` the larger of that and the genie's mean squared error
-    (a trial it no longer resolves counting 0).
+    The mean over trials of the larger of the CRLB and the ZZB (both with the prior
+    ``suffix``), and the larger of that and the genie's mean squared error where it was
+    computed (a trial it no longer resolves counting 0).
     """
     from geofix.evaluate.zzb import combined_track_bound
 
     per_sample = combined_track_bound(bounds[f"crlb{suffix}"], bounds[f"zzb{suffix}"])
-    if genie:
+    if f"genie{suffix}" in bounds:
         mmse = np.nan_to_num(bounds[f"genie{suffix}"], nan=0.0).mean(axis=0)
         per_sample = np.maximum(per_sample, mmse)
-    return float(np.sqrt(per_sample.mean()))
+    return per_sample
+
+
+def track_bound_rms(bounds: dict, suffix: str = "") -> float:
+    """RMS along the track of :func:`per_sample_bound`, metres."""
+    return float(np.sqrt(per_sample_bound(bounds, suffix).mean()))
+
+
+def end_bound_rms(bounds: dict, suffix: str = "") -> float:
+    """:func:`per_sample_bound` at the last sample, as an RMS, metres."""
+    return float(np.sqrt(per_sample_bound(bounds, suffix)[-1]))
 
 
 def resolved_share(bounds: dict, suffix: str = "") -> float:

@@ -151,11 +151,13 @@ def track_bounds(scen, trials: int) -> dict:
     """
     from sections._bounds import resolved_share, track_bound_rms, trial_bounds
 
-    bounds = trial_bounds(scen, trials, genie=True)
+    suffixes = ("", "_simulator")
+    bounds = trial_bounds(scen, trials, genie=suffixes)
     out = {}
-    for suffix in ("", "_simulator"):
-        out[f"zzb{suffix}"] = track_bound_rms(bounds, suffix)
-        out[f"bound{suffix}"] = track_bound_rms(bounds, suffix, genie=True)
+    for suffix in suffixes:
+        without = {k: v for k, v in bounds.items() if not k.startswith("genie")}
+        out[f"zzb{suffix}"] = track_bound_rms(without, suffix)
+        out[f"bound{suffix}"] = track_bound_rms(bounds, suffix)
         out[f"resolved{suffix}"] = resolved_share(bounds, suffix)
     return out
 
