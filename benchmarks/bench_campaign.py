@@ -10,7 +10,8 @@ Three measurements, each campaign run in a fresh child process watched from outs
   ``--jobs 2``; reported as bytes per map cell (goal <= 12) and as the 2-worker /
   1-worker ratio (goal <= 1.2);
 - ``scaling``: wall time of a 40-trial TERCOM campaign with ``--jobs 1`` and ``--jobs 2``,
-  in alternating pairs (``scaling_long``: the same with 400 trials); the median of the
+  in alternating pairs (``scaling_long``: the same with 400 trials; ``scaling_headline``:
+  40 trials of the headline TERCOM size, +-150 cells x 110 points); the median of the
   pair ratios (goal >= 1.7) and their spread (on a machine whose two cores are shared the
   spread says how much of the ratio is load), and
   the CPU seconds of each run after its imports, workers included (what parallelism
@@ -61,10 +62,10 @@ def make_map(path: Path, cells: int, seed: int = 0) -> Path:
     return path
 
 
-def scenario_file(folder: Path, map_path: Path, cells: int, trials: int) -> Path:
-    """A TERCOM-friendly gravimeter scenario in the middle of the synthetic map."""
+def scenario_file(folder: Path, map_path: Path, cells: int, trials: int, samples: int = 40) -> Path:
+    """A TERCOM-friendly gravimeter scenario of ``samples`` readings mid-map."""
     text = f"""
-    name: bench_campaign_{cells}
+    name: bench_campaign_{cells}_{samples}
     map:
       path: {map_path}
     track:
@@ -73,7 +74,7 @@ def scenario_file(folder: Path, map_path: Path, cells: int, trials: int) -> Path
       heading_deg: 45
       speed_m_s: 5
       interval_s: 20
-      samples: 40
+      samples: {samples}
     sensor:
       type: gravimeter
       noise_std: 1.0
@@ -82,7 +83,7 @@ def scenario_file(folder: Path, map_path: Path, cells: int, trials: int) -> Path
     trials: {trials}
     seed: 13
     """
-    path = folder / f"bench_{cells}.yaml"
+    path = folder / f"bench_{cells}_{samples}.yaml"
     path.write_text(textwrap.dedent(text))
     return path
 
@@ -106,7 +107,7 @@ def progress(done, total):
     if done and done == total:
         print(f"LAST {{time.perf_counter() - T0:.3f}}", flush=True)
 scen = load_scenario(Path({scenario!r}))
-campaign.run_campaign(scen, ["tercom:window_sigma=3"], trials={trials}, jobs={jobs},
+campaign.run_campaign(scen, [{method!r}], trials={trials}, jobs={jobs},
                       out_dir={out!r}, progress=progress)
 print(f"DONE {{time.perf_counter() - T0:.3f}}", flush=True)
 t = [b - a for a, b in zip(C0, os.times())]
@@ -138,8 +139,20 @@ def _tree_pss(proc: psutil.Process) -> int:
     return total
 
 
+#: The quick TERCOM of the campaign figures: a +-3 sigma window (+-45 cells of 100 m).
+QUICK_TERCOM = "tercom:window_sigma=3"
+#: The TERCOM size of the headline figure, +-150 cells x 110 points (100 m cells).
+HEADLINE_TERCOM, HEADLINE_SAMPLES = "tercom:window_m=15000", 110
+
+
 def watch_campaign(
-    scenario: Path, jobs: int, trials: int, out: Path, limit_s: float, memory: bool = True
+    scenario: Path,
+    jobs: int,
+    trials: int,
+    out: Path,
+    limit_s: float,
+    memory: bool = True,
+    method: str = QUICK_TERCOM,
 ) -> dict:
     """Run a campaign in a child process; peak PSS, time to first result, wall time.
 
@@ -147,7 +160,9 @@ def watch_campaign(
     process's page map each 50 ms costs CPU that a 2-worker run on two cores would
     otherwise have, and so would slow the very run whose wall time is measured.
     """
-    code = _CHILD.format(scenario=str(scenario), trials=trials, jobs=jobs, out=str(out))
+    code = _CHILD.format(
+        scenario=str(scenario), trials=trials, jobs=jobs, out=str(out), method=method
+    )
     env = {**os.environ, "NUMBA_NUM_THREADS": "1", "PYTHONPATH": str(ROOT / "src")}
     t0 = time.perf_counter()
     log = out.with_suffix(".stderr")
@@ -204,19 +219,30 @@ def memory_figures(folder: Path, cells: int, trials: int = 4) -> dict:
     return report
 
 
-def scaling_figures(folder: Path, trials: int = 40, pairs: int = 3) -> dict:
+def scaling_figures(
+    folder: Path,
+    trials: int = 40,
+    pairs: int = 3,
+    samples: int = 40,
+    method: str = QUICK_TERCOM,
+) -> dict:
     """Wall times of ``--jobs 1`` and ``--jobs 2`` in alternating pairs, and their ratios."""
-    small = make_map(folder / "small.nc", 800)
-    scen = scenario_file(folder, small, 800, trials)
+    small = folder / "small.nc"
+    if not small.exists():
+        make_map(small, 800)
+    scen = scenario_file(folder, small, 800, trials, samples)
     runs: dict = {1: [], 2: []}
     for k in range(pairs):
         for jobs in (1, 2):
-            out = folder / f"s{jobs}_{k}"
-            runs[jobs].append(watch_campaign(scen, jobs, trials, out, 1800.0, memory=False))
+            out = folder / f"s{jobs}_{k}_{samples}_{trials}"
+            run = watch_campaign(scen, jobs, trials, out, 1800.0, memory=False, method=method)
+            runs[jobs].append(run)
     ratios = [a["wall_s"] / b["wall_s"] for a, b in zip(runs[1], runs[2], strict=True)]
     return {
         **serial_share(runs[1]),
         "trials": trials,
+        "samples": samples,
+        "method": method,
         "jobs1_wall_s": [r["wall_s"] for r in runs[1]],
         "jobs2_wall_s": [r["wall_s"] for r in runs[2]],
         "jobs1_cpu_s": [r["cpu_s"] for r in runs[1]],
@@ -261,6 +287,9 @@ def campaign_figures(cells: int, watch_s: float = 20.0, skip=()) -> dict:
         if "scaling" not in skip:
             report["scaling"] = scaling_figures(folder)
             report["scaling_long"] = scaling_figures(folder, trials=LONG_TRIALS, pairs=2)
+            report["scaling_headline"] = scaling_figures(
+                folder, samples=HEADLINE_SAMPLES, method=HEADLINE_TERCOM
+            )
         if "startup" not in skip:
             report["startup"] = startup_figures(folder, watch_s)
     return report
