@@ -47,25 +47,25 @@ def trial_bounds(scen, trials: int, genie: tuple[str, ...] = ()) -> dict:
     return {key: np.asarray(value, float) for key, value in rows.items()}
 
 
-def per_sample_bound(bounds: dict, suffix: str = "") -> np.ndarray:
+def per_sample_bound(bounds: dict, suffix: str = "", genie: bool = True) -> np.ndarray:
     """``(n,)`` the bound on the mean-square error at every sample, m^2.
 
     The mean over trials of the larger of the CRLB and the ZZB (both with the prior
-    ``suffix``), and the larger of that and the genie's mean squared error where it was
-    computed (a trial it no longer resolves counting 0).
+    ``suffix``), and with ``genie`` the larger of that and the genie's mean squared error
+    where it was computed (a trial it no longer resolves counting 0).
     """
     from geofix.evaluate.zzb import combined_track_bound
 
     per_sample = combined_track_bound(bounds[f"crlb{suffix}"], bounds[f"zzb{suffix}"])
-    if f"genie{suffix}" in bounds:
+    if genie and f"genie{suffix}" in bounds:
         mmse = np.nan_to_num(bounds[f"genie{suffix}"], nan=0.0).mean(axis=0)
         per_sample = np.maximum(per_sample, mmse)
     return per_sample
 
 
-def track_bound_rms(bounds: dict, suffix: str = "") -> float:
+def track_bound_rms(bounds: dict, suffix: str = "", genie: bool = True) -> float:
     """RMS along the track of :func:`per_sample_bound`, metres."""
-    return float(np.sqrt(per_sample_bound(bounds, suffix).mean()))
+    return float(np.sqrt(per_sample_bound(bounds, suffix, genie).mean()))
 
 
 def end_bound_rms(bounds: dict, suffix: str = "") -> float:

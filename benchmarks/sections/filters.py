@@ -155,8 +155,7 @@ def track_bounds(scen, trials: int) -> dict:
     bounds = trial_bounds(scen, trials, genie=suffixes)
     out = {}
     for suffix in suffixes:
-        without = {k: v for k, v in bounds.items() if not k.startswith("genie")}
-        out[f"zzb{suffix}"] = track_bound_rms(without, suffix)
+        out[f"zzb{suffix}"] = track_bound_rms(bounds, suffix, genie=False)
         out[f"bound{suffix}"] = track_bound_rms(bounds, suffix)
         out[f"resolved{suffix}"] = resolved_share(bounds, suffix)
     return out

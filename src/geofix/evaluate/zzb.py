@@ -224,7 +224,7 @@ def zzb_track(
         if valid[k].any():
             y = np.where(valid[k], clean[k], np.nan)
             for i, (u, v) in enumerate(levels):
-                if alive[i] or i == len(levels) - 1:
+                if alive[i]:  # the finest level is never dropped
                     frame = (truth[k], -axes, u, v)
                     ll, _ = node_grid_log_likelihood(
                         grid, frame, heading[k], trial.offsets, y, var, False
@@ -259,7 +259,7 @@ def _bound(levels: list, d2: list, alive: list, sd: np.ndarray, drop_below: floa
     h: list[list] = [[], []]
     f: list[list] = [[], []]
     for i, (u, v) in enumerate(levels):
-        if not alive[i] and i < len(levels) - 1:
+        if not alive[i]:
             continue
         a = pair_term(d2[i], u, v, sd)
         if i < len(levels) - 1:
