@@ -15,6 +15,14 @@ other tools can be run on the very same data:
 - every optional array of a trial (``dvl_velocity``, ``true_velocity``,
   ``unlagged_measured``) as ``extra_<key>[_x|_y]`` and ``lag_s`` per trial, each
   tagged with attributes ``extra_key`` / ``extra_component`` so the reader restores them;
+- with a ``seabed:`` block (:mod:`geofix.sim.seabed`), the prior maps the methods got:
+  ``prior_z`` on its own metric cell-centre coordinates ``prior_x, prior_y``, with
+  dimensions ``(prior_y, prior_x)`` when every trial has the same prior and ``(trial,
+  prior_y, prior_x)`` otherwise; its geometry in the attributes ``prior_grid_x0,
+  prior_grid_y0, prior_grid_dx, prior_grid_dy, prior_grid_name, prior_grid_meta_json``
+  (kind and units those of ``z``; ``registration_std_m`` in the meta when the block
+  gives it), and the drawn misregistration ``prior_shift_x, prior_shift_y (trial)``,
+  metres (truth). ``z`` is then the seabed the sensor read (without the relief);
 - global attributes: the scenario as YAML (``scenario_yaml``), its name, seed, sensor
   type and conventions; the navigator's INS error model
   (:class:`~geofix.nav.errstate.InsErrorModel`, SI units) as JSON (``ins_model_json``)
@@ -26,6 +34,7 @@ other tools can be run on the very same data:
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -34,8 +43,10 @@ from numpy.typing import ArrayLike
 
 from geofix.errors import ConfigError, GeofixError
 from geofix.maps.grid import Grid
+from geofix.memory import cells_bytes, check_allocation
 from geofix.nav.errstate import InsErrorModel
 from geofix.sim.scenario import with_overrides
+from geofix.sim.seabed import prior_shape
 from geofix.sim.trial import Trial
 
 # One dataset variable as xarray takes it: ``(dims, values, attributes)``.
@@ -75,7 +86,8 @@ def export_trials(scenario, path: str | Path, trials: int | None = None, seed=No
     ------
     GeofixError
         ``trials`` below 1 (ConfigError), a track off the map (TrackOffMapError), a bad
-        map (MapError), or the file cannot be written.
+        map (MapError), prior maps beyond the memory budget (MemoryBudgetError), or the
+        file cannot be written.
     """
     from geofix.sim.simulate import prepare_map, simulate_trial
 
@@ -84,6 +96,9 @@ def export_trials(scenario, path: str | Path, trials: int | None = None, seed=No
         raise ConfigError(f"--out {path} is a folder; give the netCDF file to write")
     scenario = with_overrides(scenario, trials, seed)
     grid = prepare_map(scenario)
+    if scenario.seabed is not None:
+        shape = prior_shape(grid.shape, scenario.seabed.cell_factor)
+        _check_priors_size(scenario.trials, shape)
     runs = [simulate_trial(scenario, grid, i) for i in range(scenario.trials)]
     dataset = trials_dataset(grid, runs, _scenario_attrs(scenario))
     try:
@@ -134,7 +149,14 @@ def trials_dataset(grid: Grid, trials: list[Trial], attrs: dict | None = None):
     data["offset_along"] = ("beam", first.offsets[:, 1], _attrs("beam offset, forward", "m"))
     data["leg_start"] = ("leg", np.asarray(first.leg_starts), _attrs("first sample of leg", "1"))
     coords = {"x": ("x", grid.x, {"units": "m"}), "y": ("y", grid.y, {"units": "m"})}
-    return xr.Dataset(data, coords=coords, attrs={**_global_attrs(grid, first), **(attrs or {})})
+    global_attrs = {**_global_attrs(grid, first), **(attrs or {})}
+    prior = _prior_vars(trials)
+    if prior is not None:
+        prior_data, prior_coords, prior_attrs = prior
+        data.update(prior_data)
+        coords.update(prior_coords)
+        global_attrs.update(prior_attrs)
+    return xr.Dataset(data, coords=coords, attrs=global_attrs)
 
 
 def _attrs(long_name: str, units: str) -> dict:
@@ -190,6 +212,60 @@ def _extra_vars(trials: list[Trial]) -> dict[str, _Variable]:
             dims = ("trial", "sample", "beam")
             out[f"extra_{key}"] = (dims, stacked, {**tag, "extra_component": "beams"})
     return out
+
+
+def _check_priors_size(trials: int, shape: tuple[int, int]) -> None:
+    """Refuse prior maps of ``trials`` trials that would not fit the memory budget."""
+    check_allocation(
+        cells_bytes(trials, shape[0], shape[1], copies=2),
+        f"prior maps of {trials} trials ({shape[0]} x {shape[1]} cells each; seabed block)",
+    )
+
+
+def _prior_vars(trials: list[Trial]) -> tuple[dict, dict, dict] | None:
+    """``(variables, coordinates, attributes)`` of the trials' prior maps; None without."""
+    if all(t.prior_map is None for t in trials):
+        return None
+    priors = [t.prior_map for t in trials if t.prior_map is not None]
+    if len(priors) != len(trials):
+        raise GeofixError("trials to export must all have a prior map, or none")
+    first = priors[0]
+    geometry = (first.shape, first.x0, first.y0, first.dx, first.dy)
+    for p in priors[1:]:
+        if (p.shape, p.x0, p.y0, p.dx, p.dy) != geometry:
+            raise GeofixError("trials to export must share one prior map geometry")
+    _check_priors_size(len(priors), first.shape)
+    what = {"units": first.units, "long_name": "prior map the methods got"}
+    same = all(p is first or np.array_equal(p.values, first.values, equal_nan=True) for p in priors)
+    if same:
+        values: _Variable = (("prior_y", "prior_x"), np.asarray(first.values), what)
+    else:
+        stacked = np.stack([np.asarray(p.values) for p in priors])
+        values = (("trial", "prior_y", "prior_x"), stacked, what)
+    shifts = np.stack([_shift(t) for t in trials])
+    data: dict[str, _Variable] = {
+        "prior_z": values,
+        "prior_shift_x": ("trial", shifts[:, 0], _attrs("prior map misregistration, east", "m")),
+        "prior_shift_y": ("trial", shifts[:, 1], _attrs("prior map misregistration, north", "m")),
+    }
+    coords = {
+        "prior_x": ("prior_x", first.x, {"units": "m"}),
+        "prior_y": ("prior_y", first.y, {"units": "m"}),
+    }
+    attrs = {
+        "prior_grid_x0": float(first.x0),
+        "prior_grid_y0": float(first.y0),
+        "prior_grid_dx": float(first.dx),
+        "prior_grid_dy": float(first.dy),
+        "prior_grid_name": first.name,
+        "prior_grid_meta_json": json.dumps(first.meta, default=str),
+    }
+    return data, coords, attrs
+
+
+def _shift(trial: Trial) -> np.ndarray:
+    """The trial's drawn prior misregistration, metres (zero when none is recorded)."""
+    return np.zeros(2) if trial.prior_shift_m is None else np.asarray(trial.prior_shift_m, float)
 
 
 def _global_attrs(grid: Grid, first: Trial) -> dict:
@@ -248,7 +324,8 @@ def load_exported(path: str | Path) -> tuple[Grid, list[Trial]]:
     -------
     tuple
         ``(Grid, [Trial, ...])``, equal to what was exported (tuples in the grid's
-        ``meta`` come back as lists), ``ins_model`` included when the file has one.
+        ``meta`` come back as lists), ``ins_model`` included when the file has one and
+        each trial's ``prior_map`` and ``prior_shift_m`` when it has prior maps.
 
     Raises
     ------
@@ -265,7 +342,16 @@ def load_exported(path: str | Path) -> tuple[Grid, list[Trial]]:
     if ds.attrs.get("geofix_trials") != 1:
         raise GeofixError(f"{path} is not a geofix trials export (no geofix_trials attribute)")
     ins_model = _ins_model_from(ds)
-    return _grid_from(ds), [_trial_from(ds, k, ins_model) for k in range(ds.sizes["trial"])]
+    grid = _grid_from(ds)
+    trials = []
+    shared = _prior_from(ds, 0, grid) if "prior_z" in ds and ds["prior_z"].ndim == 2 else None
+    for k in range(ds.sizes["trial"]):
+        trial = _trial_from(ds, k, ins_model)
+        if "prior_z" in ds:
+            prior = _prior_from(ds, k, grid) if shared is None else shared
+            trial = replace(trial, prior_map=prior, prior_shift_m=_shift_from(ds, k))
+        trials.append(trial)
+    return grid, trials
 
 
 def _grid_from(ds) -> Grid:
@@ -281,6 +367,27 @@ def _grid_from(ds) -> Grid:
         name=str(a["grid_name"]),
         meta=json.loads(a["grid_meta_json"]),
     )
+
+
+def _prior_from(ds, k: int, grid: Grid) -> Grid:
+    """Trial ``k``'s prior map (kind and units those of the seabed ``grid``)."""
+    a = ds.attrs
+    values = ds["prior_z"].values
+    return Grid(
+        values[k] if values.ndim == 3 else values,
+        x0=float(a["prior_grid_x0"]),
+        y0=float(a["prior_grid_y0"]),
+        dx=float(a["prior_grid_dx"]),
+        dy=float(a["prior_grid_dy"]),
+        kind=grid.kind,
+        units=grid.units,
+        name=str(a["prior_grid_name"]),
+        meta=json.loads(a["prior_grid_meta_json"]),
+    )
+
+
+def _shift_from(ds, k: int) -> np.ndarray:
+    return np.array([float(ds["prior_shift_x"].values[k]), float(ds["prior_shift_y"].values[k])])
 
 
 def _trial_from(ds, k: int, ins_model: InsErrorModel | None = None) -> Trial:

@@ -14,10 +14,15 @@ never renamed. Example::
           accel_noise_ug_rt_hz: 0}
     trials: 100
     seed: 1
+    seabed: {cell_factor: 4, error_rms: 2.0, error_corr_m: 400, misregistration_m: 150}
 
 The sensor, INS and DVL blocks are the specifications of their own layers
 (:class:`geofix.sensors.spec.SensorSpec`, :class:`geofix.nav.spec.InsSpec`,
-:class:`geofix.nav.spec.DvlSpec`), importable from here too.
+:class:`geofix.nav.spec.DvlSpec`), importable from here too. The optional ``seabed``
+block (:class:`geofix.sim.seabed.SeabedSpec`, every key described in
+:mod:`geofix.sim.seabed`) makes the map the sensor reads (the scenario's ``map``, the
+seabed) differ from the prior map the methods get; a scenario without it is dumped (and
+hashed) as before the block existed.
 """
 
 from __future__ import annotations
@@ -26,18 +31,28 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    Field,
+    SerializerFunctionWrapHandler,
+    ValidationError,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
 
 from geofix._strict import Strict
 from geofix.errors import ConfigError
 from geofix.nav.spec import DvlSpec, InsSpec
 from geofix.sensors.spec import SensorSpec
+from geofix.sim.seabed import HolesSpec, SeabedSpec
 
 __all__ = [
     "DvlSpec",
+    "HolesSpec",
     "InsSpec",
     "MapSpec",
     "Scenario",
+    "SeabedSpec",
     "SensorSpec",
     "TrackSpec",
     "builtin_scenario_path",
@@ -91,6 +106,7 @@ class Scenario(Strict):
     dvl: DvlSpec | None = None
     trials: int = Field(default=10, ge=1)
     seed: int = Field(default=0, ge=0)
+    seabed: SeabedSpec | None = None
     base_dir: str = Field(default=".", exclude=True)
 
     @field_validator("name")
@@ -105,6 +121,14 @@ class Scenario(Strict):
         if self.ins.mode == "dvl" and self.dvl is None:
             raise ValueError("ins.mode: dvl needs a dvl block (noise_std_m_s, bias_m_s, ...)")
         return self
+
+    @model_serializer(mode="wrap")
+    def _without_absent_seabed(self, handler: SerializerFunctionWrapHandler) -> dict:
+        # a scenario without a seabed block dumps (and so hashes) exactly as before it existed
+        data = handler(self)
+        if self.seabed is None:
+            data.pop("seabed", None)
+        return data
 
     def map_path(self) -> str:
         """The map path as given, resolved against the scenario's folder."""

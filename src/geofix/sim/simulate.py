@@ -2,9 +2,14 @@
 
 Trial ``i`` of a scenario uses ``numpy.random.default_rng([seed, i])`` only, so any trial
 is reproducible alone and in any process. That generator is split (``Generator.spawn``)
-into independent streams for the track (start jitter, turns), the INS, the DVL and the
-sensor, so switching the DVL on or changing the sensor leaves the track and the INS
-errors of a trial unchanged.
+into independent streams for the track (start jitter, turns), the INS, the DVL, the
+sensor and the seabed (``spawn(5)``: children are keyed by their index, so the first four
+are those of the earlier ``spawn(4)``), so switching the DVL on, changing the sensor or
+adding a ``seabed:`` block leaves the track and the INS errors of a trial unchanged.
+
+With a ``seabed:`` block (:mod:`geofix.sim.seabed`) the prepared map is the seabed: the
+sensor reads it (plus the block's relief), the readings carry its offset, tide and drift,
+and the trial carries the prior map its methods get (``Trial.prior_map``).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from geofix.nav.trajectory import TrueTrajectory, true_trajectory
 from geofix.problem import footprint_xy
 from geofix.sensors.echosounder import beam_noise_std, sensor_offsets
 from geofix.sim.scenario import Scenario
+from geofix.sim.seabed import SeabedDraw, draw_seabed
 from geofix.sim.sensing import measure_with_unlagged
 from geofix.sim.trial import Trial
 
@@ -208,7 +214,9 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
     scenario : Scenario
         The mission family.
     grid : Grid
-        The prepared map (see :func:`prepare_map`); the sensor reads it along the truth.
+        The prepared map (see :func:`prepare_map`); the sensor reads it along the truth
+        (with a ``seabed`` block: the seabed, plus its relief, and the trial's prior map
+        is derived from it, see :mod:`geofix.sim.seabed`).
     index : int
         Trial number; the random generator is ``default_rng([scenario.seed, index])``.
 
@@ -226,14 +234,18 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
         aiding a free INS (None in ``ins.mode: dvl``, where the DVL is the navigator
         itself); for a gravimeter ``unlagged_measured`` ``(n, 1)`` and ``lag_s``.
         ``ins_model`` is the navigator's :class:`~geofix.nav.errstate.InsErrorModel`
-        (handed to the problems).
+        (handed to the problems). With a ``seabed`` block, ``prior_map`` is the trial's
+        prior map (handed to the problems instead of ``grid``) and ``prior_shift_m`` its
+        drawn misregistration; the readings carry the block's offset, tide and drift.
 
     Raises
     ------
     TrackOffMapError
-        A beam footprint of the true track is off the map or on no-data.
+        A beam footprint of the true track is off the map or on no-data (with a
+        ``seabed`` block: off the seabed or off the prior map).
     ConfigError
-        The start position or the sensor geometry is not given properly.
+        The start position or the sensor geometry is not given properly, or the
+        ``seabed`` block does not fit the map.
 
     Examples
     --------
@@ -248,15 +260,27 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
     """
     check_trial_size(scenario)
     check_sensor_fits_map(scenario, grid)
-    track_rng, ins_rng, dvl_rng, sensor_rng = np.random.default_rng([scenario.seed, index]).spawn(4)
+    streams = np.random.default_rng([scenario.seed, index]).spawn(5)
+    track_rng, ins_rng, dvl_rng, sensor_rng, seabed_rng = streams
     true = _true_track(scenario, grid, track_rng)
     offsets = sensor_offsets(scenario.sensor)
     x, y = footprint_xy(true.positions, true.heading, offsets)
-    check_track_on_map(grid, np.stack([x, y], axis=-1), "true track")
+    footprints = np.stack([x, y], axis=-1)
+    check_track_on_map(grid, footprints, "true track")
     ins = simulate_ins(true, scenario.ins, ins_rng, scenario.dvl)
+    draw = _draw_seabed(scenario, grid, seabed_rng, footprints, true.times)
     measured, unlagged = measure_with_unlagged(
-        grid, true.positions, true.heading, offsets, scenario.sensor, sensor_rng, true.times
+        grid if draw is None else draw.sensed,
+        true.positions,
+        true.heading,
+        offsets,
+        scenario.sensor,
+        sensor_rng,
+        true.times,
     )
+    if draw is not None:
+        measured = measured + draw.reading_offsets[:, None]
+        unlagged = unlagged + draw.reading_offsets[:, None]
     if not np.all(np.isfinite(measured)):
         k = int(np.argmax(~np.isfinite(measured).all(axis=1)))
         raise TrackOffMapError(f"true track: measurement not finite at sample {k}")
@@ -282,7 +306,37 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
         index=int(index),
         **_aiding(scenario, true, unlagged, dvl_rng),
         ins_model=InsErrorModel.from_specs(scenario.ins, scenario.dvl),
+        **_prior_fields(draw),
     )
+
+
+def _draw_seabed(
+    scenario: Scenario, grid: Grid, rng: np.random.Generator, footprints, times
+) -> SeabedDraw | None:
+    """The trial's draw of the ``seabed`` block (None without one).
+
+    Raises
+    ------
+    TrackOffMapError
+        The prior map does not cover the true track's footprints.
+    """
+    if scenario.seabed is None:
+        return None
+    draw = draw_seabed(grid, scenario.seabed, rng, footprints, times)
+    try:
+        check_track_on_map(draw.prior, footprints, "true track on the prior map")
+    except TrackOffMapError as exc:
+        k = scenario.seabed.cell_factor
+        hint = "" if k == 1 else f" (seabed.cell_factor {k} cuts the seabed's ragged edge)"
+        raise TrackOffMapError(f"{exc}{hint}") from None
+    return draw
+
+
+def _prior_fields(draw: SeabedDraw | None) -> dict:
+    """The trial's prior map and its drawn misregistration (none without a seabed block)."""
+    if draw is None:
+        return {}
+    return {"prior_map": draw.prior, "prior_shift_m": draw.shift_m}
 
 
 def simulate_trials(

@@ -62,6 +62,14 @@ class Trial:
     lag_s : float
         The gravimeter's declared lag time constant, seconds (0 without one): the
         scenario's sensor datasheet number, handed to every problem.
+    prior_map : Grid or None
+        The prior map of this trial when it differs from the field the sensor read (a
+        scenario's ``seabed`` block, :mod:`geofix.sim.seabed`): :meth:`problem` hands it
+        to the method instead of the grid it is given. Its ``meta`` may hold
+        ``registration_std_m``, how well the map states it is registered, metres.
+    prior_shift_m : numpy.ndarray or None
+        ``(2,)`` the prior map's drawn misregistration ``(east, north)``, metres (truth:
+        never handed to a method); None without a prior map.
     """
 
     truth: np.ndarray
@@ -83,6 +91,8 @@ class Trial:
     true_velocity: np.ndarray | None = None
     unlagged_measured: np.ndarray | None = None
     lag_s: float = 0.0
+    prior_map: Grid | None = None
+    prior_shift_m: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.beam_noise_std is not None:
@@ -102,12 +112,13 @@ class Trial:
         """The :class:`MatchProblem` for samples ``part``.
 
         ``indicated`` replaces the free INS track for that part (after a reset to an
-        earlier fix, say); by default the free INS track is used.
+        earlier fix, say); by default the free INS track is used. The problem's map is
+        the trial's ``prior_map`` when it has one, else ``grid``.
         """
         ind = self.indicated[part] if indicated is None else np.asarray(indicated, dtype=float)
         dvl = None if self.dvl_velocity is None else np.asarray(self.dvl_velocity)[part]
         return MatchProblem(
-            grid=grid,
+            grid=grid if self.prior_map is None else self.prior_map,
             indicated=ind,
             heading=self.indicated_heading[part],
             offsets=self.offsets,
