@@ -6,6 +6,7 @@ from pathlib import Path
 
 from geofix.errors import ConfigError
 from geofix.logs.gsf import GSF_SUFFIXES, read_gsf
+from geofix.logs.mgd77 import MGD77T_SUFFIXES, longest_mission
 from geofix.logs.mission import Mission
 from geofix.logs.tables import read_tables
 
@@ -35,7 +36,10 @@ def read_mission(path: str | Path, frame: str | None = None, trial: int = 0) -> 
     ----------
     path : str or pathlib.Path
         A GSF file (``.gsf``, ``.mb121``), a ``geofix export`` netCDF file, a folder of
-        ``nav`` / ``soundings`` tables (:mod:`geofix.logs.tables`), or ``builtin:ex1811``.
+        ``nav`` / ``soundings`` tables (:mod:`geofix.logs.tables`), an MGD77T ship
+        trackline (``.m77t``: its longest depth mission, or its longest gravity mission
+        when it has no depths; :func:`~geofix.logs.mgd77.read_mgd77` gives every
+        segment and field), or ``builtin:ex1811``.
     frame : str, optional
         PROJ string of the metric frame for logs in lon/lat (a map's projection, so that
         the mission and the map share one frame).
@@ -56,11 +60,13 @@ def read_mission(path: str | Path, frame: str | None = None, trial: int = 0) -> 
         raise ConfigError(f"log not found: {path}")
     if path.suffix.lower() in GSF_SUFFIXES or ".gsf" in path.name.lower():
         return read_gsf(path, frame=frame)
+    if path.suffix.lower() in MGD77T_SUFFIXES:
+        return longest_mission(path, frame=frame)
     if path.suffix.lower() in (".nc", ".nc4"):
         from geofix.logs.exported import read_exported
 
         return read_exported(path, trial=trial)[0]
     raise ConfigError(
         f"{path}: unknown log format (expected .gsf/.mb121, a geofix export .nc, "
-        "or a folder of nav/soundings tables)"
+        "an MGD77T .m77t, or a folder of nav/soundings tables)"
     )
