@@ -11,6 +11,11 @@ track; after each fix the INS is reset to the fix's last position, so leg ``k`` 
   cell squared and capped at the free INS variance ``sigma[r]**2``; ``sigma[0]**2`` when
   the fix gives no usable covariance) plus the INS error grown since the reset.
 
+A batch fix's covariance already holds the INS drift inside its own leg (the error of the
+leg's last sample against the mean error its one offset fits,
+:func:`geofix.match.drift.leg_drift_covariance`): that is the covariance the campaign
+scores (NEES, false fixes) and the one handed to the next leg.
+
 A recursive method (``recursive`` True) is handed the whole mission as one problem and
 returns its estimate at every sample.
 """

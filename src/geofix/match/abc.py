@@ -30,7 +30,10 @@ numpy step over an array ``(pairs, sources, 4)``.
   the aligned indicated points. The candidate with the smallest mean Hausdorff distance
   between its candidate track and the aligned indicated track is the pair's match.
 - Each position is matched twice (second point of pair ``k-1``, first of pair ``k``) and
-  the two are averaged.
+  the two are averaged. The covariance is the spread of the estimated INS error over the
+  last ``2h+2`` samples plus the cell's quantisation. Each position is matched locally,
+  not by one offset over the leg, so the drift term of the rigid-offset matchers
+  (:mod:`geofix.match.drift`) does not apply.
 - Simplified model (``full_every > 1``): only every ``full_every``-th pair is matched with
   the full model; the others search, without the DVL constraint, a small box
   (``simplified_radius_cells``) around the indicated positions moved by the offset

@@ -54,6 +54,12 @@ Both draw the same random numbers in the same order and give the same fix. In bo
 child that is a bit-for-bit copy of a parent (its pair not crossed, none of its genes
 mutated: about 8 % of the children) keeps the parent's costs instead of being scored
 again; the ``candidates`` diagnostic counts the individuals actually scored.
+
+The fix covariance (our addition) is the Laplace approximation of the translation
+(:func:`geofix.match._affine.translation_covariance`) widened to the Cramér–Rao bound of
+the matched footprints (:func:`geofix.match.integrity.terrain_integrity`), plus the INS
+drift inside the window (:func:`geofix.match.drift.with_leg_drift`; conservative, as the
+fitted rotation and scale absorb part of it).
 """
 
 from __future__ import annotations
@@ -73,6 +79,7 @@ from geofix.match._affine import (
     window_std,
 )
 from geofix.match._ga_fitness import ga_costs, ga_search
+from geofix.match.drift import with_leg_drift
 from geofix.match.integrity import terrain_integrity
 from geofix.problem import Fix, MatchProblem
 
@@ -500,9 +507,10 @@ class GaSca:
         radius = self.exclusion_cells * problem.grid.cell_size
         radius = max(radius, 3.0 * float(np.sqrt(np.linalg.eigvalsh(check.covariance)[-1])))
         ambiguous = check.flat or self._ambiguous(ctx, best_x, archive, radius)
+        covariance, drift = with_leg_drift(problem, check.covariance, track, heading, ctx.beams)
         return Fix(
             track=track,
-            covariance=check.covariance,
+            covariance=covariance,
             cost=best_cost,
             evaluations=int(ctx.counter[0] * ctx.valid.sum()),
             ambiguous=ambiguous,
@@ -521,6 +529,7 @@ class GaSca:
                 "beams": ctx.beams.tolist(),
                 "variant": self.variant,
                 "terrain_snr": check.snr,
+                "drift_covariance": drift,
             },
         )
 

@@ -34,7 +34,9 @@ within the noise, and the residual test cannot tell. The covariance is the Lapla
 approximation of the translation from the depth residuals at the fix, widened to the
 Cramér–Rao bound of the matched footprints with the window's INS prior
 (:func:`geofix.match.integrity.information_covariance`; the Laplace curvature of a noisy
-residual surface is far too narrow on flat terrain).
+residual surface is far too narrow on flat terrain), plus the INS drift inside the window
+(:func:`geofix.match.drift.with_leg_drift`; conservative here, as the fitted rotation
+absorbs part of it).
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ from geofix.match._affine import (
     window_std,
 )
 from geofix.match._contours import ContourMap
+from geofix.match.drift import with_leg_drift
 from geofix.match.integrity import terrain_integrity
 from geofix.match.rigid import rigid_transform
 from geofix.measurement import residuals
@@ -179,9 +182,10 @@ class _IccpBase:
             beams,
         )
         ambiguous = (not result.converged) or not (misfit <= self.max_residual_sigma * floor)
+        covariance, drift = with_leg_drift(problem, check.covariance, result.track, heading, beams)
         return Fix(
             track=result.track,
-            covariance=check.covariance,
+            covariance=covariance,
             cost=result.residual_m,
             evaluations=int(result.iterations * result.used_points),
             ambiguous=bool(ambiguous or check.flat),
@@ -193,6 +197,7 @@ class _IccpBase:
                 "depth_rms": misfit,
                 "terrain_snr": check.snr,
                 "beams": np.asarray(beams).tolist(),
+                "drift_covariance": drift,
                 **info,
             },
         )

@@ -46,7 +46,9 @@ footprints is flatter than ``min_terrain_snr`` noise sigmas
 noise, so the residual cannot tell). The covariance is widened to the Cramér–Rao bound
 of the final footprints with the window's INS prior
 (:func:`geofix.match.integrity.information_covariance`), which stays finite on flat
-terrain. For ``tercom-icp`` the flag is that of the ICP stage: the coarse TERCOM's own
+terrain, and gains the INS drift inside the window
+(:func:`geofix.match.drift.with_leg_drift`; conservative, as the fitted rotation absorbs
+part of it). For ``tercom-icp`` the flag is that of the ICP stage: the coarse TERCOM's own
 flag (kept in the diagnostics as ``coarse_ambiguous``) is raised on most nadir profiles
 of 10 depths, while the swath residual and relief after ICP tell a wrong fix from a
 right one.
@@ -63,6 +65,7 @@ from scipy.spatial import cKDTree
 
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.grid import Grid
+from geofix.match.drift import with_leg_drift
 from geofix.match.integrity import terrain_integrity
 from geofix.match.rigid import apply_transform, rigid_transform
 from geofix.match.tercom import Tercom
@@ -253,9 +256,10 @@ class Icp:
         limit = self.ambiguity_rms_factor * self._depth_std(problem)
         ambiguous = (not result.converged) or result.rms_residual > limit or check.flat
         angle = float(np.degrees(np.arctan2(result.rotation[1, 0], result.rotation[0, 0])))
+        covariance, drift = with_leg_drift(problem, check.covariance, track, heading)
         return Fix(
             track=track,
-            covariance=check.covariance,
+            covariance=covariance,
             cost=result.rms_residual,
             evaluations=result.iterations * result.points,
             ambiguous=bool(ambiguous),
@@ -269,6 +273,7 @@ class Icp:
                 "terrain_snr": check.snr,
                 "target_points": result.targets,
                 "depth_weight": self.weight(problem),
+                "drift_covariance": drift,
                 **extra,
             },
         )

@@ -43,6 +43,13 @@ numbers ``sigma0`` is about 0.6 m, far below a 100 m cell: SPMP then keeps ``S1`
 
 ``track_shape="anchor"`` is an extension, not the source: the candidate track runs from
 the start fix to the candidate end, the indicated track rotated and scaled about its start.
+
+Integrity (our addition): the candidates' MSDs are turned into a pseudo-likelihood whose
+spread (plus the cell's quantisation) is the covariance of the end fix, and whose mass
+beyond ``exclusion_cells`` flags the fix ambiguous; the INS drift inside the window,
+which a translated track cannot follow, is added
+(:func:`geofix.match.drift.with_leg_drift`; conservative for ``"anchor"``, whose rotation
+and scale absorb part of it).
 """
 
 from __future__ import annotations
@@ -57,6 +64,7 @@ import numpy as np
 from geofix._threads import pick, twins
 from geofix.errors import ConfigError, MatchError
 from geofix.maps.grid import Grid
+from geofix.match.drift import with_leg_drift
 from geofix.measurement import predict_track
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import Fix, MatchProblem
@@ -317,9 +325,11 @@ class Ioap:
         if not np.isfinite(cost).any():
             raise MatchError("ioap: no candidate end point gives a track on valid map data")
         best = int(np.nanargmin(cost))
-        covariance, ambiguous = self._integrity(problem, cost, ends, best)
+        own, ambiguous = self._integrity(problem, cost, ends, best)
+        track = self.candidate_tracks(problem, start, ends[best : best + 1])[0]
+        covariance, drift = with_leg_drift(problem, own, track)
         return Fix(
-            track=self.candidate_tracks(problem, start, ends[best : best + 1])[0],
+            track=track,
             covariance=covariance,
             cost=float(cost[best]),
             evaluations=int(ends.shape[0] * valid.sum()),
@@ -331,6 +341,7 @@ class Ioap:
                 "candidates": int(ends.shape[0]),
                 "sigma0": sigma0,
                 "sigma": sigma,
+                "drift_covariance": drift,
             },
         )
 

@@ -17,7 +17,10 @@ Laplace for ``mad``, with the sensor noise as scale) whose mass-weighted spread 
 fix covariance; the fix is *ambiguous* when more than ``ambiguity_mass`` of that mass lies
 farther than ``exclusion_cells`` from the best candidate (a second minimum nearly as good
 as the first, far from it). For ``cor``/``ncor``, whose values are no distances, the
-integrity check scores the same window once more with ``msd``. The fix is also flagged
+integrity check scores the same window once more with ``msd``. The INS drift inside the
+window, which one rigid offset cannot follow, is added to that covariance
+(:func:`geofix.match.drift.with_leg_drift`: the error of the last sample against the
+information-weighted mean error the offset fits). The fix is also flagged
 when the terrain along it is too flat to tell: the standard deviation of the map over the
 matched footprints is below ``min_terrain_snr`` times the sensor noise (a surface whose
 relief drowns in the noise, such as a flat sediment plain, makes the pseudo-likelihood
@@ -54,6 +57,7 @@ from geofix.match._tercom_loop import (
     loop_sums,
     whole_cell_shifts,
 )
+from geofix.match.drift import with_leg_drift
 from geofix.match.integrity import terrain_snr
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import Fix, MatchProblem
@@ -163,9 +167,10 @@ class Tercom:
             surface = _surface(problem, ox, oy, "msd", self.min_valid_fraction, self.route, margin)[
                 0
             ]
-        covariance, ambiguous = self._integrity(problem, surface, ox, oy, (j, k))
+        own, ambiguous = self._integrity(problem, surface, ox, oy, (j, k))
         track = problem.indicated + offset
         snr = terrain_snr(problem, track)
+        covariance, drift = with_leg_drift(problem, own, track)
         return Fix(
             track=track,
             covariance=covariance,
@@ -177,6 +182,7 @@ class Tercom:
                 "candidates": int(cost.size),
                 "terrain_snr": snr,
                 "route": route,
+                "drift_covariance": drift,
             },
         )
 
