@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from geofix.errors import MatchError
 from geofix.measurement import beam_gradients, sample_information
 from geofix.nav.errstate import InsErrorModel, error_state, step_velocities
 from geofix.problem import MatchProblem
@@ -261,7 +262,15 @@ def with_leg_drift(
         ``(covariance + drift, drift)``, m^2 (``(None, drift)`` without a covariance:
         the sensor part is unknown, so the sum would claim too much).
     """
-    drift = leg_drift_covariance(problem, track, heading, beams)
+    try:
+        drift = leg_drift_covariance(problem, track, heading, beams)
+    except (OverflowError, FloatingPointError):
+        drift = np.full((2, 2), np.inf)
+    if not np.isfinite(drift).all():
+        raise MatchError(
+            "the INS error model grows beyond any finite covariance within the leg "
+            "(ins / dvl noise and bias settings too large)"
+        )
     if covariance is None:
         return None, drift
     return np.asarray(covariance, dtype=float) + drift, drift
