@@ -18,7 +18,11 @@ a scenario's ``ins:`` block); its position prior is replaced by ``init``'s sigma
 
 The time step itself, gating, statuses and re-initialisation live in
 :class:`geofix.filters.online.OnlineFilter`, which also runs every campaign trial
-(:func:`geofix.filters.base.run_filter`).
+(:func:`geofix.filters.base.run_filter`). ``est.status`` is ``converged`` only when the
+filter's own consistency supports its covariance (several pings, their NIS in range, a
+steady fix, a resolved posterior: :meth:`~geofix.filters.online.OnlineFilter.consistency`);
+while ``lost`` the estimate is the INS fallback (:meth:`~Navigator.fallback`), the
+navigation plus the last good offset with the covariance grown since.
 """
 
 from __future__ import annotations

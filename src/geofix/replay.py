@@ -209,7 +209,11 @@ def summarise(mission: Mission, inputs: ReplayInput, estimates: dict) -> dict:
     """The replay's JSON summary.
 
     ``{"pings", "methods": {NAME: {end_error_m, mean_error_m, max_error_m,
-    converged_at_s, reinits}}}`` (errors None without a truth).
+    converged_at_s, reinits, converged_pings, converged_nees, ins_end_error_m}}}``:
+    ``converged_pings`` the pings reported ``converged``, ``converged_nees`` the mean NEES
+    ``e^T C^-1 e`` over them (about 2 when the reported covariance is honest; None when
+    none converged), ``ins_end_error_m`` the INS's own end error (the yardstick); errors
+    and NEES None without a truth.
     """
     methods: dict[str, dict[str, float | int | None]] = {}
     t0 = float(mission.times[0])
@@ -230,18 +234,65 @@ def summarise(mission: Mission, inputs: ReplayInput, estimates: dict) -> dict:
         converged = [e.t - t0 for e in ests if e.status == "converged"]
         row["converged_at_s"] = float(converged[0]) if converged else None
         row["reinits"] = int(ests[-1].reinits) if ests else 0
+        row["converged_pings"] = len(converged)
+        row["converged_nees"] = converged_nees(ests, inputs.truth)
+        row["ins_end_error_m"] = (
+            None
+            if inputs.truth is None
+            else float(np.hypot(*(inputs.indicated[-1] - inputs.truth[-1])))
+        )
         methods[spec] = row
     return {"pings": int(mission.n), "methods": methods}
 
 
+def nees(estimates: list[Estimate], truth) -> np.ndarray:
+    """``(n,)`` NEES ``e^T C^-1 e`` of every estimate against the truth ``(n, 2)`` metres.
+
+    Raises
+    ------
+    ConfigError
+        ``truth`` does not have one row per estimate.
+    """
+    truth = np.asarray(truth, dtype=float)
+    if truth.shape != (len(estimates), 2):
+        raise ConfigError(f"nees: truth has shape {truth.shape}, expected ({len(estimates)}, 2)")
+    out = np.empty(len(estimates))
+    for k, (est, true) in enumerate(zip(estimates, truth, strict=True)):
+        error = est.position - true
+        cov = 0.5 * (est.covariance + est.covariance.T)
+        try:
+            out[k] = float(error @ np.linalg.solve(cov, error))
+        except np.linalg.LinAlgError:
+            out[k] = float("inf")
+    return out
+
+
+def converged_nees(estimates: list[Estimate], truth) -> float | None:
+    """Mean NEES over the estimates reported ``converged`` (None: no truth or none).
+
+    About 2 (two degrees of freedom) when the covariance the navigator reports with
+    ``converged`` is honest.
+    """
+    if truth is None:
+        return None
+    values = nees(estimates, truth)
+    picked = np.array([e.status == "converged" for e in estimates], dtype=bool)
+    return float(values[picked].mean()) if picked.any() else None
+
+
 # ---------------------------------------------------------------------- outputs
 def estimates_frame(result: ReplayResult):
-    """One row per method and ping: estimate, MLE, covariance, status, NIS, truth, error."""
+    """One row per method and ping: estimate, MLE, covariance, status, NIS, truth, error.
+
+    With a truth, ``error_m`` (metres) and ``nees`` (``e^T C^-1 e`` of the reported
+    covariance) too.
+    """
     import pandas as pd
 
     rows = []
     truth = result.inputs.truth
     for spec, ests in result.estimates.items():
+        scores = nees(ests, truth) if truth is not None else None
         for k, e in enumerate(ests):
             row = {
                 "method": spec,
@@ -264,6 +315,7 @@ def estimates_frame(result: ReplayResult):
             if truth is not None:
                 row["truth_x"], row["truth_y"] = truth[k]
                 row["error_m"] = float(np.hypot(*(e.position - truth[k])))
+                row["nees"] = float(scores[k]) if scores is not None else float("nan")
             rows.append(row)
     return pd.DataFrame(rows)
 
@@ -289,7 +341,8 @@ def _write_netcdf(frame, result: ReplayResult, path: Path) -> Path:
     methods = list(result.estimates)
     n = result.mission.n
     data = {}
-    for col in ("t", "x", "y", "mle_x", "mle_y", "cov_xx", "cov_xy", "cov_yy", "nis", "error_m"):
+    columns = ("t", "x", "y", "mle_x", "mle_y", "cov_xx", "cov_xy", "cov_yy", "nis", "error_m")
+    for col in (*columns, "nees"):
         if col in frame:
             data[col] = (("method", "ping"), frame[col].to_numpy(float).reshape(len(methods), n))
     status = frame["status"].to_numpy(str).reshape(len(methods), n)

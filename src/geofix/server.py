@@ -20,7 +20,11 @@ line, in order. Requests (UTF-8 JSON objects, one per line, at most
   without them the server's model). It starts a new navigator: an ``init`` follows.
 
 Replies: ``{"ok": true, "type": ..., "t", "x", "y", "cov": [[..], [..]], "status", "mle",
-"nis", "accepted", "pings", "rejected", "reinits"}`` (the estimate after the request;
+"nis", "accepted", "pings", "rejected", "reinits"}`` (the estimate after the request:
+``status`` ``converged`` only once the filter's claim is consistent with its pings --
+never after one ping -- and, while ``lost``, ``x``, ``y`` and ``cov`` are the INS
+fallback, the navigation plus the last good offset with the covariance grown since; the
+rules are those of :mod:`geofix.filters.online`;
 ``{"ok": true, "type": "config", "method": spec}`` to a ``config``), or
 ``{"ok": false, "error": "one line naming the problem"}`` (a refused ``config`` leaves
 the connection's navigator as it was). A malformed, out-of-order or

@@ -17,6 +17,7 @@ from geofix.sim.export import export_trials
 
 runner = CliRunner()
 ROW_KEYS = {"end_error_m", "mean_error_m", "max_error_m", "converged_at_s", "reinits"}
+NEW_ROW_KEYS = {"converged_pings", "converged_nees", "ins_end_error_m"}  # extensions
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +36,7 @@ def test_pmf_replay_of_ex1811_converges_within_two_cells_from_500_m(ex1811_map, 
     summary = json.loads(result.stdout)
     assert set(summary) == {"pings", "methods"} and summary["pings"] == 50
     row = summary["methods"]["pmf"]
-    assert set(row) == ROW_KEYS
+    assert set(row) == ROW_KEYS | NEW_ROW_KEYS
     assert row["converged_at_s"] is not None
     # from 500 m of initial INS error: within 2 map cells (100 m) of the GNSS track
     assert row["max_error_m"] < 100.0 and row["end_error_m"] < 100.0
@@ -98,16 +99,18 @@ def test_mpf_replay_of_ex1811_converges_within_two_cells_from_500_m(ex1811_map, 
     assert set(summary) == {"pings", "methods"} and summary["pings"] == 50
     for name in ("mpf", "pmf:model=errstate"):
         row = summary["methods"][name]
-        assert set(row) == ROW_KEYS
+        assert set(row) == ROW_KEYS | NEW_ROW_KEYS
         assert row["converged_at_s"] is not None
         # from 500 m of initial INS error: within 2 map cells (100 m) of the GNSS track
         assert row["end_error_m"] < 100.0 and row["max_error_m"] < 150.0, (name, row)
         assert row["mean_error_m"] < 60.0, (name, row)
     # mpf's first update on its 25 m prior lattice is applied in stages: without them
     # it kept one particle about 100 m off (a 0 m wide set) until the NIS window
-    # re-initialised it, a mean track error of about 30 m
+    # re-initialised it, a mean track error of about 30 m. One ping never makes
+    # ``converged`` (the claim needs converge_min_pings consistent pings): not at 0 s.
     mpf = summary["methods"]["mpf"]
-    assert mpf["converged_at_s"] == 0.0 and mpf["mean_error_m"] < 20.0, mpf
+    assert mpf["mean_error_m"] < 20.0, mpf
+    assert mpf["converged_at_s"] > 0.0 and mpf["converged_pings"] >= 5, mpf
 
 
 def test_error_state_filters_need_an_ins_model_in_one_line(ex1811_map, tmp_path):

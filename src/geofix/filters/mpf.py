@@ -99,6 +99,7 @@ from threadpoolctl import threadpool_limits
 
 from geofix.errors import ConfigError, MatchError
 from geofix.filters.base import Motion, Observation, RecursiveFilter
+from geofix.filters.nuisance import check_map_model
 from geofix.filters.pf import (
     PfState,
     check_field_variance,
@@ -218,6 +219,13 @@ class Mpf(RecursiveFilter):
         the default) or ``simulator`` (the very distribution the simulator draws it from,
         ``N(initial_offset, initial_std^2)`` per axis: a filter told the INS's bias, to
         measure against a bound that holds for any estimator on the trials).
+    map_model : str
+        What the likelihood assumes of the prior map: ``exact`` (default: the map is the
+        seabed, up to white noise per beam), ``adaptive`` (the map's representation error
+        at its own resolution added per beam, and the noise scaled to the innovations
+        seen) or ``imperfect`` (``adaptive`` and a common offset, measured minus map,
+        estimated with the position); :mod:`geofix.filters.nuisance`,
+        :meth:`geofix.filters.online.NavigatorSettings.for_map_model`.
     """
 
     name: ClassVar[str] = "mpf"
@@ -240,6 +248,7 @@ class Mpf(RecursiveFilter):
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
     prior: str = "moments"
+    map_model: str = "exact"
 
     def __post_init__(self) -> None:
         if self.prior not in PRIORS:
@@ -258,6 +267,7 @@ class Mpf(RecursiveFilter):
                 f"mpf: position_walk_cells must be finite and >= 0, got {self.position_walk_cells}"
             )
         check_field_variance("mpf", self.field_variance)
+        check_map_model("mpf", self.map_model)
         check_progressive("mpf", self.min_update_ess, self.progressive_stages)
 
     # ------------------------------------------------------------------ protocol

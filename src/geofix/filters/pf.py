@@ -56,6 +56,7 @@ from scipy.special import logsumexp
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _particle_kernels as kernels
 from geofix.filters.base import Motion, Observation, RecursiveFilter
+from geofix.filters.nuisance import check_map_model
 from geofix.maps.grid import Grid
 from geofix.measurement import (
     hypotheses_log_likelihood,
@@ -151,6 +152,13 @@ class Pf(RecursiveFilter):
         Radius around the fix, map cells, for the integrity flag.
     ambiguity_mass : float
         Weight beyond that radius above which the fix is flagged ambiguous.
+    map_model : str
+        What the likelihood assumes of the prior map: ``exact`` (default: the map is the
+        seabed, up to white noise per beam), ``adaptive`` (the map's representation error
+        at its own resolution added per beam, and the noise scaled to the innovations
+        seen) or ``imperfect`` (``adaptive`` and a common offset, measured minus map,
+        estimated with the position); :mod:`geofix.filters.nuisance`,
+        :meth:`geofix.filters.online.NavigatorSettings.for_map_model`.
 
     References
     ----------
@@ -180,6 +188,7 @@ class Pf(RecursiveFilter):
     progressive_min_cells: float = 0.05
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
+    map_model: str = "exact"
 
     def __post_init__(self) -> None:
         if self.particles < 10 or self.max_particles < self.particles:
@@ -192,6 +201,7 @@ class Pf(RecursiveFilter):
         if not 0.0 <= self.resample_threshold <= 1.0 or self.roughening < 0:
             raise ConfigError("pf: resample_threshold must be in [0, 1], roughening >= 0")
         check_field_variance("pf", self.field_variance)
+        check_map_model("pf", self.map_model)
 
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> PfState:
         """A stratified sample of ``N(indicated[0], sigma_position[0]^2 I)``.

@@ -77,6 +77,7 @@ from geofix.filters import _grid_kernels as grid_kernels
 from geofix.filters import _grid_ops as ops
 from geofix.filters._pmf_errstate import conditional_motion, dvl_update, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
+from geofix.filters.nuisance import check_map_model
 from geofix.filters.pf import check_field_variance, uses_local_field
 from geofix.maps.grid import Grid
 from geofix.measurement import (
@@ -228,6 +229,13 @@ class Pmf(RecursiveFilter):
     use_dvl : bool
         Fold in an aiding DVL's velocity when the problem has one (``model=errstate``;
         the random-walk model has no velocity state to aid).
+    map_model : str
+        What the likelihood assumes of the prior map: ``exact`` (default: the map is the
+        seabed, up to white noise per beam), ``adaptive`` (the map's representation error
+        at its own resolution added per beam, and the noise scaled to the innovations
+        seen) or ``imperfect`` (``adaptive`` and a common offset, measured minus map,
+        estimated with the position); :mod:`geofix.filters.nuisance`,
+        :meth:`geofix.filters.online.NavigatorSettings.for_map_model`.
 
     References
     ----------
@@ -264,6 +272,7 @@ class Pmf(RecursiveFilter):
     ambiguity_mass: float = 0.05
     model: str = "rw"
     use_dvl: bool = True
+    map_model: str = "exact"
 
     def __post_init__(self) -> None:
         if self.model not in ("rw", "errstate"):
@@ -277,6 +286,7 @@ class Pmf(RecursiveFilter):
         if self.regrid_ratio <= 1 or self.max_zoom <= 1:
             raise ConfigError("pmf: regrid_ratio and max_zoom must exceed 1")
         check_field_variance("pmf", self.field_variance)
+        check_map_model("pmf", self.map_model)
 
     @property
     def needs_ins_model(self) -> bool:

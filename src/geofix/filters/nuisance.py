@@ -1,0 +1,463 @@
+r"""The measurement model's nuisance states: a common offset and the residual scale.
+
+A prior map is not the seabed. Two of its departures matter to every filter whatever its
+algorithm, and both are estimated here on line, beside the position, from the pings
+themselves:
+
+- :class:`CommonOffset` -- an offset common to every beam of a ping, measured minus map
+  (a tide, a datum or sound-speed error, a gravimeter's offset and drift, the slowly
+  varying part of a map error correlated over more than a swath). It is a random walk
+  ``beta_k = beta_{k-1} + w``, ``Var w = walk * dt``, with a Gaussian prior. Each ping is
+  weighed with its values taken relative to the offset's mean and its likelihood
+  marginalised over the offset's variance ``P`` in closed form
+  (:func:`geofix.measurement.common_bias_log_likelihood`), so a ping's shape tells the
+  position whatever the offset; after the update the offset's posterior is taken at the
+  five unscented points of the position posterior and moment-matched (its variance is the
+  mean posterior variance plus the spread of the points' means), so an uncertain position
+  on a slope leaves the offset uncertain too.
+- :class:`ResidualScale` -- a factor ``s`` on the declared measurement variance, the
+  residual scale, estimated from the innovations (Mehra 1972; Sage and Husa 1969): before
+  each update the residuals ``r_b`` of the ping against the prediction at the five
+  unscented points of the prior give ``u = sum_b (r_b^2 - S_b - P) / R_b`` over the ``n``
+  beams (``S_b`` the predicted spread of beam ``b`` over the position posterior, ``P``
+  the offset's variance, ``R_b`` the declared variance), whose expectation is
+  ``s n`` when the map's departures add ``(s - 1) R_b``. ``s`` is the mean ``beta / alpha``
+  of an inverse-gamma posterior with exponential forgetting (``alpha <- lambda alpha +
+  n / 2``, ``beta <- lambda beta + max(u, 0) / 2``), floored at 1: a filter
+  told too small a noise (a map coarser than the seabed, an offset, a correlated error)
+  moves to the residuals it sees and reports the covariance they support; a filter told
+  the right noise keeps it.
+
+Both are immutable values; :class:`geofix.filters.online.OnlineFilter` carries them for
+every filter with weighted points (the point-mass, particle and marginalised particle
+filters), in a campaign trial as on line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy import ndimage
+
+from geofix.errors import ConfigError
+from geofix.filters.base import Observation
+from geofix.maps.grid import Grid
+from geofix.measurement import common_bias_posterior, predict_measurements
+from geofix.memory import cells_bytes, check_allocation
+
+#: Default prior 1-sigma of the common offset for a depth map: metres plus a share of the
+#: water depth (a sound-speed error of 0.2 % scales every depth).
+DEPTH_OFFSET_STD_M = 5.0
+DEPTH_OFFSET_SHARE = 0.002
+#: Default prior 1-sigma of the common offset for a gravity map, mGal.
+GRAVITY_OFFSET_STD_MGAL = 5.0
+
+
+MAP_MODELS = ("exact", "adaptive", "imperfect")
+"""What a filter's likelihood assumes of the prior map (its ``map_model`` setting)."""
+
+
+def check_map_model(name: str, value: str) -> None:
+    """Raise a ConfigError naming the filter unless ``value`` is one of :data:`MAP_MODELS`.
+
+    Parameters
+    ----------
+    name : str
+        The filter's name, for the message.
+    value : str
+        The ``map_model`` setting.
+    """
+    if value not in MAP_MODELS:
+        raise ConfigError(f"{name}: map_model must be exact, adaptive or imperfect, got {value!r}")
+
+
+def default_offset_std(grid: Grid) -> float:
+    """Prior 1-sigma of the common offset when the settings leave it open, map units.
+
+    Parameters
+    ----------
+    grid : Grid
+        The prior map: its kind and its median field value.
+
+    Returns
+    -------
+    float
+        A depth map: ``5 m + 0.2 %`` of the median water depth (a tide, a datum, a
+        sound-speed error); a gravity map: 5 mGal.
+    """
+    if grid.kind == "gravity":
+        return GRAVITY_OFFSET_STD_MGAL
+    values = np.asarray(grid.values, dtype=float)
+    finite = values[np.isfinite(values)]
+    depth = float(np.median(np.abs(finite))) if finite.size else 0.0
+    return DEPTH_OFFSET_STD_M + DEPTH_OFFSET_SHARE * depth
+
+
+def unscented_points(mean, cov) -> tuple[np.ndarray, np.ndarray]:
+    """The five sigma points ``mean``, ``mean +- sqrt(3) L_i`` (``L L^T = cov``) and weights.
+
+    Parameters
+    ----------
+    mean : array_like
+        ``(2,)`` position, metres.
+    cov : array_like
+        ``(2, 2)`` covariance, m^2.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(5, 2)`` points (metres) and ``(5,)`` weights ``1/3, 1/6, 1/6, 1/6, 1/6``.
+    """
+    mean = np.asarray(mean, dtype=float)
+    cov = np.asarray(cov, dtype=float)
+    cov = 0.5 * (cov + cov.T) + 1e-9 * np.eye(2)
+    try:
+        chol = np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        chol = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * np.eye(2)
+    spread = np.sqrt(3.0) * chol.T
+    points = np.vstack([mean, mean + spread, mean - spread])
+    return points, np.array([1 / 3, 1 / 6, 1 / 6, 1 / 6, 1 / 6])
+
+
+@dataclass(frozen=True)
+class PointReads:
+    """A ping read from the unscented points of a position posterior.
+
+    Parameters
+    ----------
+    predicted : numpy.ndarray
+        ``(5, k)`` field each used beam reads from each point, map units.
+    weights : numpy.ndarray
+        ``(5,)`` the points' weights.
+    values : numpy.ndarray
+        ``(k,)`` the used beams' readings (relative to the offset's mean), map units.
+    noise_var : numpy.ndarray
+        ``(k,)`` the used beams' declared variance, map units squared.
+    """
+
+    predicted: np.ndarray
+    weights: np.ndarray
+    values: np.ndarray
+    noise_var: np.ndarray
+
+    @property
+    def beams(self) -> int:
+        """Beams read (finite reading, on the map at every point)."""
+        return int(self.values.size)
+
+
+def read_at_points(grid: Grid, mean, cov, obs: Observation) -> PointReads | None:
+    """The ping's beams read at the unscented points of ``N(mean, cov)``.
+
+    Parameters
+    ----------
+    grid : Grid
+        The prior map.
+    mean, cov : array_like
+        Position posterior ``(2,)`` metres and ``(2, 2)`` m^2.
+    obs : Observation
+        The ping.
+
+    Returns
+    -------
+    PointReads or None
+        None when no beam has a finite reading on the map at every point.
+    """
+    points, weights = unscented_points(mean, cov)
+    predicted = predict_measurements(grid, points, obs.heading, obs.offsets)
+    use = np.isfinite(obs.values) & np.isfinite(predicted).all(axis=0)
+    if not use.any():
+        return None
+    noise = np.broadcast_to(np.asarray(obs.noise_var, dtype=float), obs.values.shape)
+    return PointReads(predicted[:, use], weights, obs.values[use], noise[use])
+
+
+@dataclass(frozen=True)
+class CommonOffset:
+    """A random-walk offset common to every beam, measured minus map (map units).
+
+    Parameters
+    ----------
+    mean : float
+        Posterior mean, map units.
+    var : float
+        Posterior variance, map units squared (0: no offset is modelled).
+    walk : float
+        Variance gained per second, map units squared per second.
+    t : float or None
+        Time of the last prediction, seconds (None: not yet predicted).
+    """
+
+    mean: float = 0.0
+    var: float = 0.0
+    walk: float = 1e-3
+    t: float | None = None
+
+    @classmethod
+    def prior(cls, std: float, walk: float, t: float) -> CommonOffset:
+        """``N(0, std^2)`` at time ``t`` (seconds) with the walk rate (units^2 / s).
+
+        Raises
+        ------
+        ConfigError
+            ``std`` or ``walk`` not finite and >= 0.
+        """
+        for name, value in (("std", std), ("walk", walk)):
+            if not (np.isfinite(value) and value >= 0):
+                raise ConfigError(f"common offset: {name} must be finite and >= 0, got {value}")
+        return cls(0.0, float(std) ** 2, float(walk), float(t))
+
+    @property
+    def active(self) -> bool:
+        """An offset is modelled (its prior variance was positive)."""
+        return self.var > 0
+
+    @property
+    def std(self) -> float:
+        """Posterior 1-sigma, map units."""
+        return float(np.sqrt(self.var))
+
+    def predicted(self, t: float) -> CommonOffset:
+        """The offset at time ``t`` (seconds): the variance grows by ``walk`` per second."""
+        if not self.active:
+            return self
+        dt = 0.0 if self.t is None else max(float(t) - self.t, 0.0)
+        return replace(self, var=self.var + self.walk * dt, t=float(t))
+
+    def relative(self, obs: Observation) -> Observation:
+        """``obs`` with its values relative to the offset's mean and its variance to marginalise.
+
+        Parameters
+        ----------
+        obs : Observation
+            The ping as read (map units).
+
+        Returns
+        -------
+        Observation
+            ``values - mean`` and ``bias_var = var`` (unchanged when inactive).
+        """
+        if not self.active:
+            return obs
+        return replace(obs, values=obs.values - self.mean, bias_var=self.var)
+
+    def updated(self, reads: PointReads | None, bias_var: float) -> CommonOffset:
+        """The offset's posterior after a ping, moment-matched over the unscented points.
+
+        Parameters
+        ----------
+        reads : PointReads or None
+            The ping read at the posterior's unscented points (values relative to the
+            offset's mean); None leaves the offset as it is.
+        bias_var : float
+            The offset's variance the ping was weighed with, map units squared.
+
+        Returns
+        -------
+        CommonOffset
+            Mean ``mean + sum_i w_i d_i`` and variance ``v + sum_i w_i (d_i - dbar)^2``,
+            ``d_i, v`` the offset's posterior given the ping at point ``i``
+            (:func:`geofix.measurement.common_bias_posterior`).
+        """
+        if not self.active or reads is None:
+            return self
+        shifts = np.empty(reads.weights.size)
+        var = bias_var
+        for i in range(reads.weights.size):
+            shifts[i], var = common_bias_posterior(
+                reads.values - reads.predicted[i], reads.noise_var, bias_var
+            )
+        shift = float(reads.weights @ shifts)
+        spread = float(reads.weights @ (shifts - shift) ** 2)
+        return replace(self, mean=self.mean + shift, var=var + spread)
+
+
+@dataclass(frozen=True)
+class ResidualScale:
+    """A factor on the declared measurement variance, estimated from the innovations.
+
+    Parameters
+    ----------
+    alpha, beta : float
+        Shape and scale of the inverse-gamma posterior of the factor (pseudo-counts of
+        half-beams).
+    forgetting : float
+        ``lambda`` in ``(0, 1]``: the weight a ping keeps at the next one (memory of about
+        ``1 / (1 - lambda)`` pings).
+    floor : float
+        Smallest factor reported.
+    """
+
+    alpha: float = 5.0
+    beta: float = 5.0
+    forgetting: float = 0.98
+    floor: float = 1.0
+
+    @classmethod
+    def prior(cls, forgetting: float, pseudo_beams: float = 10.0) -> ResidualScale:
+        """A factor of 1 worth ``pseudo_beams`` beams, forgetting ``forgetting`` per ping.
+
+        Raises
+        ------
+        ConfigError
+            ``forgetting`` outside ``(0, 1]`` or ``pseudo_beams`` not positive.
+        """
+        if not 0.0 < forgetting <= 1.0:
+            raise ConfigError(f"residual scale: forgetting must be in (0, 1], got {forgetting}")
+        if not pseudo_beams > 0:
+            raise ConfigError(f"residual scale: pseudo_beams must be positive, got {pseudo_beams}")
+        half = 0.5 * float(pseudo_beams)
+        return cls(half, half, float(forgetting))
+
+    @property
+    def factor(self) -> float:
+        """The factor on the declared variance, at least ``floor``."""
+        return max(self.beta / self.alpha, self.floor)
+
+    def scaled(self, obs: Observation) -> Observation:
+        """``obs`` with its measurement variance times :attr:`factor`."""
+        factor = self.factor
+        if factor == 1.0:
+            return obs
+        return replace(obs, noise_var=np.asarray(obs.noise_var, dtype=float) * factor)
+
+    def updated(self, reads: PointReads | None, bias_var: float) -> ResidualScale:
+        """Fold in a ping's innovations (read before its update).
+
+        Parameters
+        ----------
+        reads : PointReads or None
+            The ping read at the prior's unscented points, with the declared (unscaled)
+            variances; None leaves the scale as it is.
+        bias_var : float
+            Variance of the common offset the values are relative to, map units squared.
+
+        Returns
+        -------
+        ResidualScale
+            ``alpha <- lambda alpha + n / 2``, ``beta <- lambda beta + max(u, 0) / 2``
+            with ``u = sum_b (r_b^2 - S_b - P) / R_b`` over the ``n`` beams: the squared
+            innovations less what the position's and the offset's spread explain, in
+            units of the declared variance (``n`` on average when it is right).
+        """
+        if reads is None or not np.isfinite(reads.predicted).all():
+            return self
+        yhat = reads.weights @ reads.predicted
+        spread = reads.weights @ (reads.predicted - yhat) ** 2
+        residual = reads.values - yhat
+        if not np.isfinite(residual).all():
+            return self
+        total = float(np.sum((residual**2 - spread - bias_var) / reads.noise_var))
+        if not np.isfinite(total):
+            return self
+        lam = self.forgetting
+        return replace(
+            self,
+            alpha=lam * self.alpha + 0.5 * reads.beams,
+            beta=lam * self.beta + 0.5 * max(total, 0.0),
+        )
+
+
+#: Share of the 3 x 3 plane-fit residual that the map's representation error is taken to be:
+#: a quadratic surface's bilinear interpolation error has 0.39 of the rms of that residual;
+#: relief below the cell adds to it.
+REPRESENTATION_SHARE = 0.5
+
+
+def representation_std(grid: Grid) -> Grid:
+    """The map's representation error at its own resolution, per cell (map units).
+
+    A map read between its nodes (bilinear) misses the field's curvature and the relief
+    below its cell. Both scale with the field's departure from a plane at the scale of a
+    cell, the rms residual ``rho`` of a least-squares plane fitted to each 3 x 3 block of
+    cells; the layer is ``REPRESENTATION_SHARE * rho``. A plane reads exactly (0); a
+    rough map at a coarse cell gets the most.
+
+    Parameters
+    ----------
+    grid : Grid
+        The prior map.
+
+    Returns
+    -------
+    Grid
+        The same geometry, per-cell standard deviation (the outer ring takes its inner
+        neighbour's value; 0 next to no-data).
+    """
+    z = np.asarray(grid.values, dtype=float)
+    check_allocation(cells_bytes(z.size, copies=6), "representation-error layer of the map")
+    finite = np.isfinite(z)
+    z = z - (float(np.mean(z[finite])) if finite.any() else 0.0)  # less cancellation below
+    ones = np.ones((3, 3)) / 9.0
+    u = np.array([[-1.0, 0.0, 1.0]] * 3) / 6.0  # sum u^2 over the block = 6
+    mean = ndimage.correlate(z, ones, mode="nearest")
+    slope_u = ndimage.correlate(z, u, mode="nearest")
+    slope_v = ndimage.correlate(z, u.T, mode="nearest")
+    mean_sq = ndimage.correlate(z * z, ones, mode="nearest")
+    # residual variance of the plane fit: mean z^2 - a^2 - (2/3)(b^2 + c^2)
+    resid = mean_sq - mean**2 - (2.0 / 3.0) * (slope_u**2 + slope_v**2)
+    std = REPRESENTATION_SHARE * np.sqrt(np.clip(resid, 0.0, None))
+    std = np.where(np.isfinite(std), std, 0.0)
+    if min(std.shape) >= 3:  # the outer ring has no full block: its neighbour's value
+        std[0], std[-1] = std[1], std[-2]
+        std[:, 0], std[:, -1] = std[:, 1], std[:, -2]
+    return grid.with_values(std)
+
+
+#: Most pings that one map error is counted across (a vehicle at rest would otherwise
+#: discount its readings without end).
+MAX_PINGS_PER_ERROR = 10.0
+
+
+def correlated_share(offsets, cell: float, step_m: float | None = None) -> float:
+    """Readings per independent map error: across a ping's footprints and along the track.
+
+    The representation error is correlated over about a cell. The ``b`` footprints of a
+    ping spanning ``extent`` metres see about ``n = 1 + extent / cell`` independent errors
+    (at most ``b``); consecutive pings ``step_m`` apart see the same error about
+    ``m = cell / step_m`` times (at least 1, at most :data:`MAX_PINGS_PER_ERROR`). Each
+    beam's map-error variance is multiplied by ``m b / n`` so that the likelihood carries
+    each map error's information once, not ``m b / n`` times (a diagonal approximation of
+    the correlated covariance of the beams and the pings).
+
+    Parameters
+    ----------
+    offsets : array_like
+        ``(b, 2)`` footprint offsets, metres.
+    cell : float
+        The map's cell size, metres.
+    step_m : float or None
+        Distance moved since the previous ping, metres (None: pings counted alone).
+
+    Returns
+    -------
+    float
+        ``m b / n``, at least 1.
+    """
+    offsets = np.asarray(offsets, dtype=float)
+    beams = offsets.shape[0]
+    cell = max(float(cell), 1e-9)
+    along = 1.0
+    if step_m is not None and np.isfinite(step_m):
+        along = float(np.clip(cell / max(float(step_m), 1e-9), 1.0, MAX_PINGS_PER_ERROR))
+    if beams < 2:
+        return along
+    extent = float(np.ptp(offsets, axis=0).max())
+    independent = min(1.0 + extent / cell, float(beams))
+    return along * beams / independent
+
+
+__all__ = [
+    "MAP_MODELS",
+    "CommonOffset",
+    "PointReads",
+    "ResidualScale",
+    "check_map_model",
+    "correlated_share",
+    "default_offset_std",
+    "read_at_points",
+    "representation_std",
+    "unscented_points",
+]
