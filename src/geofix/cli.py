@@ -116,13 +116,20 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     _print_line("warning:", str(message))
 
 
-def _guarded(fn):
+RESUMABLE = "finished trials are stored; run the same command to resume"
+"""What Ctrl-C prints for the commands that resume (``run``, ``demo``)."""
+STOPPED = "stopped; outputs are whole or absent, run the command again"
+"""What Ctrl-C prints for the other commands (their outputs are written whole or not)."""
+
+
+def _guarded(fn, interrupted: str = STOPPED):
     """Run ``fn``; turn any error into one clear line on stderr and exit code 2.
 
     A :class:`GeofixError` prints its message; a MemoryError or an operating-system error
-    (unwritable output, full disk) prints what failed; Ctrl-C prints how to resume
-    (exit 130). Anything else is a bug in geofix: it is reported in one line too, unless
-    ``GEOFIX_DEBUG`` is set, which shows the traceback.
+    (unwritable output, full disk) prints what failed; Ctrl-C prints ``interrupted``
+    (:data:`RESUMABLE` for the commands that resume; exit 130). Anything else is a bug
+    in geofix: it is reported in one line too, unless ``GEOFIX_DEBUG`` is set, which
+    shows the traceback.
     """
     warnings.showwarning = _show_warning
     try:
@@ -131,7 +138,7 @@ def _guarded(fn):
         _fail(str(exc))
     except KeyboardInterrupt:
         _block_interrupts()
-        _print_line("interrupted:", "finished trials are stored; run the same command to resume")
+        _print_line("interrupted:", interrupted)
         _leave_after_interrupt()
         raise typer.Exit(code=130) from None
     except MemoryError:
@@ -216,7 +223,7 @@ def run(
         if figure:
             _out.print(f"figure: {_write_figure(scen, result, out)}")
 
-    _guarded(go)
+    _guarded(go, RESUMABLE)
 
 
 @app.command()
@@ -245,7 +252,7 @@ def demo(
         _print_summary(result)
         _out.print(f"figure: {_write_figure(scen, result, out)}")
 
-    _guarded(go)
+    _guarded(go, RESUMABLE)
 
 
 @app.command()
@@ -513,9 +520,12 @@ def serve_command(
     def go():
         from geofix.maps.gridding import load_map_error
         from geofix.maps.io import load_grid
-        from geofix.replay import load_ins_model
+        from geofix.replay import check_online_method, check_seed, check_settings, load_ins_model
         from geofix.server import Session, serve
 
+        check_seed(seed)
+        check_settings({} if noise_std is None else {"noise_std": noise_std})
+        check_online_method(method, "serve")
         grid = load_grid(map_path, variable=variable, resample_m=resample_m)
         error = None if map_path.startswith("builtin:") else load_map_error(map_path)
         settings = {}
@@ -524,12 +534,17 @@ def serve_command(
         if beams is not None:
             settings["max_update_beams"] = beams
         ins_model = None if ins is None else load_ins_model(ins)
-        Session(grid, method, settings, seed, error, ins_model)  # refuse before "serving"
-        _err.print(f"serving {grid!r} with {method} on {host}:{port} (Ctrl-C stops)")
-        serve(grid, method, host, port, settings, seed, error, ins_model)
+        Session(grid, method, settings, seed, error, ins_model).close()  # refuse early
+
+        def announce(bound_host: str, bound_port: int) -> None:  # once listening: one line
+            _print_line(
+                "serving", f"{grid!r} with {method} on {bound_host}:{bound_port} (Ctrl-C stops)"
+            )
+
+        serve(grid, method, host, port, settings, seed, error, ins_model, announce=announce)
 
     try:
-        _guarded(go)
+        _guarded(go, "server stopped")
     except OSError as exc:
         _fail(f"cannot listen on {host}:{port}: {exc.strerror or exc}")
 

@@ -48,3 +48,8 @@ Units
   (micro-g), ``gyro_noise_deg_rt_h`` (deg/sqrt(h)), ``accel_noise_ug_rt_hz``
   (micro-g/sqrt(Hz)).
 """
+
+#: Largest magnitude of a measured value each field kind can physically have, map units:
+#: a seabed elevation within +-12 km (the deepest trench is 11 km), a free-air gravity
+#: anomaly within +-1000 mGal. Logged values beyond it are refused as poisoned.
+PHYSICAL_LIMITS = {"depth": 12_000.0, "gravity": 1_000.0}

@@ -39,3 +39,10 @@ class InputError(GeofixError):
 
     It is malformed, out of order or out of bounds; the navigator keeps its state.
     """
+
+
+class OutputError(GeofixError):
+    """An output file could not be written (disk full, permission denied, not a file).
+
+    The message names the path; no partial file is left under that name.
+    """

@@ -58,7 +58,7 @@ def parse_size(text: str) -> int:
     Raises
     ------
     MemoryBudgetError
-        The text is not a positive size.
+        The text is not a positive, finite size.
     """
     match = _SIZE.match(str(text))
     unit = match.group(2).lower() if match else None
@@ -70,6 +70,8 @@ def parse_size(text: str) -> int:
     size = value / 100 * physical_ram_bytes() if unit == "%" else value * _UNITS[unit]
     if not size >= 1:
         raise MemoryBudgetError(f"memory budget {text!r} must be positive")
+    if not size < float("inf"):
+        raise MemoryBudgetError(f"memory budget {text!r} is not a finite size")
     return int(size)
 
 

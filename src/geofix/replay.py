@@ -16,13 +16,16 @@ server connection take.
 
 from __future__ import annotations
 
+import uuid
+import warnings
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from geofix.errors import ConfigError
+from geofix.conventions import PHYSICAL_LIMITS
+from geofix.errors import ConfigError, GeofixWarning
 from geofix.filters.online import Estimate
 from geofix.logs.mission import Mission
 from geofix.maps.grid import Grid
@@ -32,6 +35,19 @@ DEFAULT_INS = {"velocity_error_m_s": 0.05, "heading_error_deg": 0.05, "gyro_bias
 unit: 5 cm/s velocity error, 0.05 deg heading error, 0.01 deg/h gyro drift)."""
 DEFAULT_PRIOR_SIGMA_M = 100.0
 """Prior 1-sigma of a dead-reckoned log that states none, metres."""
+OUTPUT_NAMES = ("estimates.csv", "estimates.nc", "replay.png")
+"""The files a replay writes in its output folder (each carries the replay's run id)."""
+RUN_ID_KEY = "run_id"
+"""Column of ``estimates.csv``, attribute of ``estimates.nc`` and text key of
+``replay.png`` holding the id of the replay that wrote them."""
+NOISE_STD_RANGE = (1e-6, 1e6)
+"""Accepted measurement noise 1-sigma per beam, map units (``--noise-std``)."""
+MAX_MISSION_SPAN_S = 30 * 86_400.0
+"""Pings farther than this from the log's median ping time are dropped, seconds."""
+MAX_BEAM_OFFSET_M = 1.0e5
+"""Beams farther than this from the vehicle (across or along) are dropped, metres."""
+MAX_POSITION_M = 4.0e7
+"""Pings whose navigation lies farther than this from the frame's origin are dropped."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,6 +75,7 @@ class ReplayResult:
     inputs: ReplayInput
     estimates: dict[str, list[Estimate]]
     summary: dict = field(default_factory=dict)
+    run_id: str = field(default_factory=lambda: uuid.uuid4().hex)
 
 
 def replay_inputs(mission: Mission, ins=None, initial_error_m=None, seed: int = 0) -> ReplayInput:
@@ -151,19 +168,159 @@ def replay(
         ``estimates[method]`` one :class:`Estimate` per ping; ``summary`` the JSON of
         ``geofix replay --json``.
     """
+    from geofix.filters.sizing import check_method_budget
     from geofix.navigator import Navigator
 
     if not methods:
         raise ConfigError("replay: give at least one --method")
+    check_seed(seed)
+    check_settings(settings)
+    for spec in methods:
+        check_online_method(spec)
+    mission = screen_mission(mission, grid.kind)
     inputs = replay_inputs(mission, ins, initial_error_m, seed)
     noise_var = _noise_var(mission)
     estimates = {}
     for spec in methods:
         rng = method_seed(seed, spec)
+        check_method_budget(spec, settings, grid)  # refused before the filter is built
         nav = Navigator(grid, spec, settings, rng, map_error, ins_model=inputs.ins_model)
         estimates[spec] = drive(nav, mission, inputs, noise_var)
     summary = summarise(mission, inputs, estimates)
     return ReplayResult(mission, inputs, estimates, summary)
+
+
+def check_seed(seed) -> None:
+    """Refuse a seed that is not a non-negative integer (ConfigError naming ``--seed``)."""
+    if isinstance(seed, np.random.Generator):
+        return
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ConfigError(f"--seed must be an integer >= 0, got {seed!r}")
+
+
+def check_settings(settings) -> None:
+    """Refuse a ``noise_std`` outside :data:`NOISE_STD_RANGE` (ConfigError naming it).
+
+    Its square is the measurement variance: 1e300 would overflow, 1e-300 vanish.
+    """
+    if not isinstance(settings, dict) or "noise_std" not in settings:
+        return
+    value = settings["noise_std"]
+    low, high = NOISE_STD_RANGE
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"--noise-std must be a number, got {value!r}") from None
+    if not low <= number <= high:
+        raise ConfigError(f"--noise-std must lie within {low:g} .. {high:g} map units, got {value}")
+
+
+def check_online_method(spec: str, who: str = "replay") -> None:
+    """Refuse a method the online navigator cannot run ping by ping (ConfigError).
+
+    A batch matcher, and the free INS (``ins``, a yardstick with no filter steps), are
+    named with the recursive filters that can be replayed.
+    """
+    from geofix.filters.base import RecursiveFilter
+    from geofix.methods import available_methods, parse_method_spec
+
+    method = parse_method_spec(spec)
+    if isinstance(method, RecursiveFilter) and hasattr(method, "initialize"):
+        return
+    known = [
+        name
+        for name, cls in available_methods().items()
+        if issubclass(cls, RecursiveFilter) and hasattr(cls, "initialize")
+    ]
+    what = (
+        "cannot run ping by ping" if getattr(method, "recursive", False) else "is a batch matcher"
+    )
+    raise ConfigError(f"{who}: method {spec!r} {what}; use a recursive filter ({', '.join(known)})")
+
+
+def screen_mission(mission: Mission, kind: str) -> Mission:
+    """The mission without poisoned records, with one warning counting them.
+
+    A ping is dropped when its time lies more than :data:`MAX_MISSION_SPAN_S` from the
+    log's median ping time or its navigation more than :data:`MAX_POSITION_M` from the
+    frame's origin; a beam is dropped when an offset exceeds :data:`MAX_BEAM_OFFSET_M`,
+    and a value beyond the physical range of the map's ``kind``
+    (:data:`geofix.conventions.PHYSICAL_LIMITS`) is blanked (NaN, as a missing beam).
+
+    Raises
+    ------
+    ConfigError
+        Every ping is dropped.
+    """
+    times = np.asarray(mission.times, dtype=float)
+    nav = np.asarray(mission.nav, dtype=float)
+    keep = np.abs(times - np.median(times)) <= MAX_MISSION_SPAN_S
+    keep &= (np.abs(nav) <= MAX_POSITION_M).all(axis=1)
+    if not keep.any():
+        raise ConfigError(f"replay: every ping of {mission.name!r} has a time or position off")
+    beams, blanked = _screen_beams(np.asarray(mission.beams, dtype=float), kind)
+    dropped = int((~keep).sum())
+    poisoned = int((blanked & keep).sum())
+    if dropped == 0 and poisoned == 0:
+        return mission
+    _warn_poisoned(mission, kind, dropped, poisoned)
+    screened = replace(mission, beams=beams)
+    return screened if keep.all() else _kept(screened, keep)
+
+
+def _screen_beams(beams: np.ndarray, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(beams, poisoned)``: far beams dropped, impossible values blanked; ``(n,)`` flags."""
+    limit = PHYSICAL_LIMITS.get(kind, PHYSICAL_LIMITS["depth"])
+    with np.errstate(invalid="ignore"):
+        far = (np.abs(beams[..., :2]) > MAX_BEAM_OFFSET_M).any(axis=-1)
+        impossible = np.abs(beams[..., 2]) > limit
+    bad = far | impossible
+    if not bad.any():
+        return beams, bad.any(axis=1)
+    beams = beams.copy()
+    beams[far] = np.nan
+    beams[..., 2][impossible] = np.nan
+    return beams, bad.any(axis=1)
+
+
+def _warn_poisoned(mission: Mission, kind: str, dropped: int, poisoned: int) -> None:
+    limit = PHYSICAL_LIMITS.get(kind, PHYSICAL_LIMITS["depth"])
+    parts = []
+    if dropped:
+        parts.append(f"{dropped} pings dropped (time or position out of range)")
+    if poisoned:
+        parts.append(
+            f"{poisoned} pings with beams dropped (a value beyond +-{limit:g} for a {kind} "
+            f"map, or an offset beyond {MAX_BEAM_OFFSET_M:g} m)"
+        )
+    warnings.warn(
+        f"replay: {mission.name}: {' and '.join(parts)} of {mission.n}",
+        GeofixWarning,
+        stacklevel=3,
+    )
+
+
+def _kept(mission: Mission, keep: np.ndarray) -> Mission:
+    """The pings of ``mission`` where ``keep`` is true (times rebased on the first kept)."""
+    index = np.flatnonzero(keep)
+
+    def cut(values):
+        return None if values is None else np.asarray(values)[index]
+
+    times = np.asarray(mission.times, dtype=float)[index]
+    return replace(
+        mission,
+        times=times - times[0],
+        nav=cut(mission.nav),
+        heading=cut(mission.heading),
+        beams=cut(mission.beams),
+        truth=cut(mission.truth),
+        roll=cut(mission.roll),
+        pitch=cut(mission.pitch),
+        velocity=cut(mission.velocity),
+        sigma_position=cut(mission.sigma_position),
+        start_utc=None if mission.start_utc is None else mission.start_utc + float(times[0]),
+    )
 
 
 def drive(nav, mission: Mission, inputs: ReplayInput, noise_var=None) -> list[Estimate]:
@@ -316,27 +473,102 @@ def estimates_frame(result: ReplayResult):
                 row["truth_x"], row["truth_y"] = truth[k]
                 row["error_m"] = float(np.hypot(*(e.position - truth[k])))
                 row["nees"] = float(scores[k]) if scores is not None else float("nan")
+            row[RUN_ID_KEY] = result.run_id
             rows.append(row)
     return pd.DataFrame(rows)
 
 
-def write_outputs(result: ReplayResult, grid: Grid, out_dir: str | Path) -> dict[str, Path]:
-    """``estimates.csv``, ``estimates.nc`` (dims ``method, ping``) and ``replay.png``."""
+def prepare_out_dir(out_dir: str | Path) -> Path:
+    """Create the output folder and remove an earlier replay's outputs from it.
+
+    Done before the replay starts, so that the folder never holds the files of two
+    replays side by side: after a kill or a failure it holds this replay's finished
+    files, whole, or none (each file is renamed into place when complete).
+
+    Raises
+    ------
+    OutputError
+        The folder cannot be created or is not a folder, or an old output cannot be
+        removed.
+    """
+    from geofix._atomic import check_target, output_error, remove_parts
+    from geofix.errors import OutputError
+
     out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"cannot write in {out_dir}: it is not a folder")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise ConfigError(f"cannot create output folder {out_dir}: {exc}") from None
+        raise output_error(out_dir, exc) from None
+    remove_parts(out_dir, OUTPUT_NAMES)
+    for name in OUTPUT_NAMES:
+        path = check_target(out_dir / name)
+        try:
+            path.unlink(missing_ok=True)
+        except OSError as exc:
+            raise output_error(path, exc) from None
+    return out_dir
+
+
+def write_outputs(result: ReplayResult, grid: Grid, out_dir: str | Path) -> dict[str, Path]:
+    """``estimates.csv``, ``estimates.nc`` (dims ``method, ping``) and ``replay.png``.
+
+    Each file is written whole or not at all (:mod:`geofix._atomic`) and carries the
+    replay's ``run_id`` (:data:`RUN_ID_KEY`); see :func:`prepare_out_dir` and
+    :func:`output_run_ids`.
+    """
+    from geofix._atomic import write_atomic
+
+    out_dir = prepare_out_dir(out_dir)
     frame = estimates_frame(result)
     paths = {"estimates (csv)": out_dir / "estimates.csv"}
-    frame.to_csv(paths["estimates (csv)"], index=False)
+    write_atomic(paths["estimates (csv)"], lambda part: frame.to_csv(part, index=False))
     paths["estimates (netCDF)"] = _write_netcdf(frame, result, out_dir / "estimates.nc")
     paths["figure"] = replay_figure(result, grid, out_dir / "replay.png")
     return paths
 
 
+def output_run_ids(out_dir: str | Path) -> dict[str, str | None]:
+    """The run id each replay output in ``out_dir`` carries (None: unreadable or none).
+
+    Files of one replay share one id; outputs of different replays side by side (a
+    folder written to by hand) show different ids.
+    """
+    import pandas as pd
+    from PIL import Image
+
+    out_dir = Path(out_dir)
+    ids: dict[str, str | None] = {}
+    for name in OUTPUT_NAMES:
+        path = out_dir / name
+        if not path.is_file():
+            continue
+        try:
+            if name.endswith(".csv"):
+                column = pd.read_csv(path, usecols=[RUN_ID_KEY])[RUN_ID_KEY]
+                ids[name] = str(column.iloc[0]) if len(column) else None
+            elif name.endswith(".nc"):
+                ids[name] = _netcdf_run_id(path)
+            else:
+                with Image.open(path) as image:
+                    ids[name] = image.info.get(RUN_ID_KEY)
+        except (OSError, ValueError, KeyError):
+            ids[name] = None
+    return ids
+
+
+def _netcdf_run_id(path: Path) -> str | None:
+    import netCDF4
+
+    with netCDF4.Dataset(path, "r") as ds:
+        return str(ds.getncattr(RUN_ID_KEY)) if RUN_ID_KEY in ds.ncattrs() else None
+
+
 def _write_netcdf(frame, result: ReplayResult, path: Path) -> Path:
     import xarray as xr
+
+    from geofix._atomic import write_atomic
 
     methods = list(result.estimates)
     n = result.mission.n
@@ -351,8 +583,8 @@ def _write_netcdf(frame, result: ReplayResult, path: Path) -> Path:
     ds = xr.Dataset(data, coords={"method": methods, "ping": np.arange(n)})
     ds.attrs["summary_json"] = __import__("json").dumps(result.summary)
     ds.attrs["Conventions"] = "x east, y north (metres, the map's frame); cov in m^2; t in s"
-    ds.to_netcdf(path)
-    return path
+    ds.attrs[RUN_ID_KEY] = result.run_id
+    return write_atomic(path, ds.to_netcdf)
 
 
 def replay_figure(result: ReplayResult, grid: Grid, path: Path) -> Path:
@@ -382,7 +614,7 @@ def replay_figure(result: ReplayResult, grid: Grid, path: Path) -> Path:
     ax_err.legend(loc="best", fontsize=8)
     fig.suptitle(f"replay of {result.mission.name}")
     fig.tight_layout()
-    return save_figure(fig, path)
+    return save_figure(fig, path, metadata={RUN_ID_KEY: result.run_id})
 
 
 def replay_log(
@@ -419,12 +651,19 @@ def replay_log(
     from geofix.logs.read import read_mission
     from geofix.maps.gridding import load_map_error
     from geofix.maps.io import load_grid
+    from geofix.maps.project import frame_proj
 
+    check_seed(seed)
+    check_settings(settings)
+    for spec in methods:
+        check_online_method(spec)
     ins = None
     if ins_path is not None:
         from geofix.sim.scenario import load_scenario
 
         ins = load_scenario(ins_path).ins
+    if out_dir is not None:
+        prepare_out_dir(out_dir)
     map_error = None
     if map_path is None:
         if not str(log).lower().endswith((".nc", ".nc4")):
@@ -434,6 +673,8 @@ def replay_log(
         grid = load_grid(map_path)
         map_error = load_map_error(map_path) if not str(map_path).startswith("builtin:") else None
         frame = grid.meta.get("projection")
+        if frame is not None:
+            frame_proj(frame, f"map {map_path}")
         mission = read_mission(log, frame=frame, trial=trial)
         if mission.frame is not None and frame is None:
             raise ConfigError(

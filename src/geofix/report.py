@@ -32,9 +32,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from geofix._atomic import check_target, write_text_atomic
 from geofix._version import __version__
 from geofix.errors import ConfigError, GeofixError
-from geofix.evaluate.store import STORE_NAME, ResultStore
+from geofix.evaluate.store import STORE_NAME, ResultStore, store_errors
 from geofix.methods import available_methods, method_settings, parse_method_spec
 
 SUMMARY_NAME = "summary.json"
@@ -103,7 +104,7 @@ def read_campaign(out_dir: str | Path) -> Campaign:
     summary = _read_summary(out / SUMMARY_NAME)
     if not (out / STORE_NAME).is_file():
         raise ConfigError(f"no results store {out / STORE_NAME} (run `geofix run --out {out}`)")
-    with ResultStore(out) as store:
+    with store_errors(out / STORE_NAME), ResultStore(out) as store:
         rows = store.to_frame()
     shash, frame = _campaign_rows(rows, summary, out)
     figure = out / CAMPAIGN_FIGURE_NAME
@@ -119,13 +120,70 @@ def _read_summary(path: Path) -> dict:
     if not path.is_file():
         raise ConfigError(f"no campaign summary {path} (run `geofix run --out {path.parent}`)")
     try:
-        summary = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise ConfigError(f"cannot read campaign summary {path}: {exc}") from None
+        summary = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError) as exc:
+        reason = "nested too deeply" if isinstance(exc, RecursionError) else exc
+        raise ConfigError(f"cannot read campaign summary {path}: {reason}") from None
+    if not isinstance(summary, dict):
+        raise ConfigError(f"campaign summary {path} is not a JSON object")
     missing = {"scenario", "trials", "methods"} - set(summary)
     if missing:
         raise ConfigError(f"campaign summary {path} lacks keys {sorted(missing)}")
+    _check_summary(summary, path)
     return summary
+
+
+_NUMBER_KEYS = ("crlb_m", "crlb_batch_m")
+_METHOD_COUNTS = ("trials", "failures")
+_METHOD_NUMBERS = (
+    *("mean_error_m", "std_error_m", "median_error_m", "max_error_m", "mean_track_error_m"),
+    *("false_fix_rate", "ambiguous_rate", "mean_time_s", "mean_evaluations", "success_rate"),
+)
+
+
+def _check_summary(summary: dict, path: Path) -> None:
+    """Refuse a summary whose values the page shows do not have the types ``run`` writes.
+
+    ``scenario`` a string, ``trials`` a count, ``methods`` an object of objects whose
+    counts are counts and whose shown values are numbers, null or, for
+    ``success_rate``, an object of them.
+    """
+    if not isinstance(summary["scenario"], str):
+        raise ConfigError(f"campaign summary {path}: scenario is not a string")
+    if not _is_count(summary["trials"]):
+        raise ConfigError(f"campaign summary {path}: trials is not a count")
+    for key in _NUMBER_KEYS:
+        if not _is_number(summary.get(key)):
+            raise ConfigError(f"campaign summary {path}: {key} is not a number")
+    methods = summary["methods"]
+    if not isinstance(methods, dict) or not all(isinstance(v, dict) for v in methods.values()):
+        raise ConfigError(f"campaign summary {path}: methods is not an object of methods")
+    for spec, stats in methods.items():
+        for key in (k for k in (*_METHOD_COUNTS, *_METHOD_NUMBERS) if k in stats):
+            value = stats[key]
+            fine = _is_count(value) if key in _METHOD_COUNTS else _is_number_or_rates(value)
+            if not fine:
+                raise ConfigError(
+                    f"campaign summary {path}: methods.{spec[:60]}.{key} is not a "
+                    + ("count" if key in _METHOD_COUNTS else "number")
+                )
+        if "trials" not in stats:
+            raise ConfigError(f"campaign summary {path}: methods.{spec[:60]} lacks trials")
+
+
+def _is_count(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _is_number(value: object) -> bool:
+    """A JSON number or null (a bool is not a number here)."""
+    return value is None or (isinstance(value, int | float) and not isinstance(value, bool))
+
+
+def _is_number_or_rates(value: object) -> bool:
+    if isinstance(value, dict):
+        return all(_is_number(v) for v in value.values())
+    return _is_number(value)
 
 
 def _campaign_rows(rows: pd.DataFrame, summary: dict, out: Path) -> tuple[str, pd.DataFrame]:
@@ -437,7 +495,7 @@ def _accuracy_table(methods: dict) -> str:
     keys = ["mean_error_m", "std_error_m", "median_error_m", "max_error_m", "mean_track_error_m"]
     head = ["method", "trials", "failed", "mean", "std", "median", "max", "mean along track"]
     rows = [
-        [_esc(spec), str(s["trials"]), str(s.get("failures", 0))] + [_num(s.get(k)) for k in keys]
+        [_esc(spec), _esc(s["trials"]), _esc(s.get("failures", 0))] + [_num(s.get(k)) for k in keys]
         for spec, s in methods.items()
     ]
     best = {k + 3: _lowest([s.get(key) for s in methods.values()]) for k, key in enumerate(keys)}
@@ -605,7 +663,7 @@ def campaign_report(out_dir: str | Path) -> str:
     methods = summary["methods"]
     body = (
         f"<h1>{_esc(summary['scenario'])}</h1>"
-        f'<p class="meta">{summary["trials"]} trials · {len(specs)} methods · '
+        f'<p class="meta">{_esc(summary["trials"])} trials · {len(specs)} methods · '
         f"written by geofix {_esc(__version__)} on {stamp}</p>"
         "<h2>Summary</h2>"
         '<p class="note">End-point errors in metres; the best value of each column in '
@@ -640,17 +698,21 @@ def write_report(out_dir: str | Path, path: str | Path | None = None) -> Path:
     out_dir : str or pathlib.Path
         The campaign folder.
     path : str or pathlib.Path, optional
-        The HTML file (default ``out_dir/report.html``); its folder is created.
+        The HTML file (default ``out_dir/report.html``); its folder is created. It is
+        written to a temporary name and renamed when complete: whole or absent.
 
     Returns
     -------
     pathlib.Path
+
+    Raises
+    ------
+    ConfigError
+        See :func:`read_campaign`.
+    OutputError
+        The page cannot be written (disk full, permission denied, not a file).
     """
-    page = campaign_report(out_dir)
     target = Path(path) if path is not None else Path(out_dir) / REPORT_NAME
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_text(page, encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"cannot write report {target}: {exc}") from None
-    return target
+    check_target(target)
+    page = campaign_report(out_dir)
+    return write_text_atomic(target, page)

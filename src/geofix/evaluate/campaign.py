@@ -66,13 +66,14 @@ import numpy as np
 import pandas as pd
 
 from geofix import _threads
+from geofix._atomic import write_text_atomic
 from geofix.errors import ConfigError, GeofixError, GeofixWarning
 from geofix.evaluate import _shared_map
 from geofix.evaluate._workers import bind_to_parent, sigint_deferred, stop_workers
 from geofix.evaluate.crlb import rms_bound, scenario_beam_variance, trial_crlb
 from geofix.evaluate.metrics import end_mahalanobis, summarize
 from geofix.evaluate.runner import TrialResult, method_rng, run_trial
-from geofix.evaluate.store import ResultStore, scenario_hash
+from geofix.evaluate.store import STORE_NAME, ResultStore, scenario_hash, store_errors
 from geofix.evaluate.summary import CampaignSummary
 from geofix.maps.grid import Grid
 from geofix.methods import parse_method_spec
@@ -226,7 +227,7 @@ def run_campaign(
     grid = campaign_map(scenario)
     check_methods_fit(parsed, simulate.simulate_trial(scenario, grid, 0))
     shash = scenario_hash(scenario)
-    with ResultStore(out) as store:
+    with store_errors(out / STORE_NAME), ResultStore(out) as store:
         done_keys = store.done_keys(shash)
         n_tasks, n_results = _pending_count(parsed, scenario.trials, done_keys)
         tasks = _pending_tasks(parsed, scenario.trials, done_keys)
@@ -355,7 +356,8 @@ def _finish(scenario, grid, frame, out: Path, store_path: Path, computed: int, i
         methods=summarize(frame, grid.cell_size),
     )
     summary_path = out / SUMMARY_NAME
-    summary_path.write_text(json.dumps(summary.to_json(), indent=2, allow_nan=False) + "\n")
+    text = json.dumps(summary.to_json(), indent=2, allow_nan=False) + "\n"
+    write_text_atomic(summary_path, text)  # whole or absent: a report never reads half
     return CampaignResult(
         scenario=scenario.name,
         trials=scenario.trials,

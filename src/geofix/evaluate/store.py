@@ -8,10 +8,12 @@ old results with new ones.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
 import sqlite3
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -126,6 +128,21 @@ def _map_file(scenario: Scenario) -> Path:
     if scenario.map.path.startswith(BUILTIN_PREFIX):
         return builtin_path(scenario.map.path)
     return Path(scenario.map_path())
+
+
+@contextlib.contextmanager
+def store_errors(path: str | Path) -> Iterator[None]:
+    """Turn an SQLite error inside the block into one GeofixError naming the store.
+
+    A full disk (``database or disk is full``), a corrupted page (``database disk image
+    is malformed``) or a locked store ends the command with the path and the reason;
+    trials committed before it stay in the store.
+    """
+    try:
+        yield
+    except sqlite3.Error as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise GeofixError(f"results store {path}: {reason}") from None
 
 
 class ResultStore:

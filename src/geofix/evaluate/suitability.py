@@ -286,5 +286,6 @@ def save_suitability(result: Suitability, out_dir: str | Path) -> dict[str, Path
     out.mkdir(parents=True, exist_ok=True)
     paths = {}
     for what in ("std", "roughness", "crlb", "crlb_mean"):
-        paths[what] = save_grid(getattr(result, what), out / f"suitability_{what}.nc")
+        path = out / f"suitability_{what}.nc"
+        paths[what] = save_grid(getattr(result, what), path, infinite_ok=True)
     return paths

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geofix.errors import ConfigError
+from geofix.errors import ConfigError, MapError
 from geofix.maps.gridding import GriddedMap, grid_soundings, save_gridded
 
 
@@ -33,14 +33,15 @@ def read_soundings(path: str | Path) -> tuple[np.ndarray, str | None, str]:
 
 def _table_soundings(path: Path) -> tuple[np.ndarray, str | None, str]:
     import pandas as pd
-    from pyproj import Proj
 
-    from geofix.maps.project import local_tmerc
+    from geofix.logs.tables import numeric_columns
+    from geofix.maps.project import project_lonlat
 
     try:
         table = pd.read_csv(path) if path.suffix.lower() == ".csv" else pd.read_parquet(path)
     except Exception as exc:
         raise ConfigError(f"cannot read {path}: {str(exc).splitlines()[0]}") from None
+    table = numeric_columns(table, path)
     if "value" in table:
         value = table["value"].to_numpy(float)
     elif "depth_m" in table:
@@ -52,10 +53,7 @@ def _table_soundings(path: Path) -> tuple[np.ndarray, str | None, str]:
         x, y = table["x"].to_numpy(float), table["y"].to_numpy(float)
     elif "lon" in table and "lat" in table:
         lon, lat = table["lon"].to_numpy(float), table["lat"].to_numpy(float)
-        frame = local_tmerc(
-            0.5 * (np.nanmin(lon) + np.nanmax(lon)), 0.5 * (np.nanmin(lat) + np.nanmax(lat))
-        )
-        x, y = Proj(frame)(lon, lat)
+        x, y, frame = project_lonlat(lon, lat, None, str(path))
     else:
         raise ConfigError(f"{path}: needs columns x, y or lon, lat")
     return np.column_stack([x, y, value]), frame, path.stem
@@ -77,7 +75,10 @@ def grid_log(
     except OSError as exc:
         raise ConfigError(f"cannot create the folder of {out}: {exc}") from None
     meta = {"source": Path(str(path)).name, "projection": frame, "format": "soundings"}
-    gridded = grid_soundings(
-        pts[:, 0], pts[:, 1], pts[:, 2], cell_m, max_gap_cells=max_gap_cells, name=name, meta=meta
-    )
+    try:
+        gridded = grid_soundings(
+            pts[:, 0], pts[:, 1], pts[:, 2], cell_m, max_gap_cells, name=name, meta=meta
+        )
+    except MapError as exc:  # name the input: the soundings come from it
+        raise MapError(f"{path}: {exc}") from None
     return gridded, save_gridded(gridded, out)

@@ -111,15 +111,13 @@ def _ping_values(ping, path: Path) -> dict:
 
 
 def _mission(pings: list[dict], path: Path, frame: str | None) -> Mission:
-    from pyproj import Proj
-
-    from geofix.maps.project import local_tmerc
+    from geofix.maps.project import local_tmerc, project_lonlat
 
     lon = np.array([p["lon"] for p in pings])
     lat = np.array([p["lat"] for p in pings])
-    if frame is None:
+    if frame is None and np.all(np.abs(lat) <= 90):
         frame = local_tmerc(float(lon.mean()), float(lat.mean()))
-    x, y = Proj(frame)(lon, lat)
+    x, y, frame = project_lonlat(lon, lat, frame, str(path))
     width = max(p["beams"].shape[0] for p in pings)
     beams = np.full((len(pings), width, 3), np.nan)
     for k, p in enumerate(pings):

@@ -656,13 +656,13 @@ def _segment_missions(
     limits: tuple[float, float],
 ) -> list[Mission]:
     """The missions of one segment: per field, its values split where they pause."""
-    from pyproj import Proj
+    from geofix.maps.project import frame_proj
 
     min_segment_s, max_gap_s = limits
     rows = segment.rows
     lon, lat = track.lon[rows], track.lat[rows]
     seg_frame = frame or _frame_of(lon, lat)
-    x, y = Proj(seg_frame)(lon, lat)
+    x, y = frame_proj(seg_frame, "MGD77 segment frame")(lon, lat)
     xy = np.column_stack([x, y])
     heading = course_over_ground(xy)
     era, error_m = _navigation_era(float(segment.t[0]))

@@ -160,12 +160,45 @@ def _read_table(folder: Path, stem: str):
         path = folder / f"{stem}{suffix}"
         if path.is_file():
             try:
-                if suffix == ".csv":
-                    return pd.read_csv(path)
-                return pd.read_parquet(path)
+                table = pd.read_csv(path) if suffix == ".csv" else pd.read_parquet(path)
             except Exception as exc:
                 raise ConfigError(f"cannot read {path}: {str(exc).splitlines()[0]}") from None
+            return numeric_columns(table, path)
     raise ConfigError(f"{folder}: no {stem}.csv or {stem}.parquet")
+
+
+NUMERIC_COLUMNS = frozenset(
+    {
+        *("t", "x", "y", "lon", "lat", "heading_deg", "roll_deg", "pitch_deg", "vx", "vy"),
+        *("sigma_m", "truth_x", "truth_y", "truth_lon", "truth_lat"),
+        *("across_m", "along_m", "value", "depth_m"),
+    }
+)
+"""Columns of the nav, soundings and gridding tables that must hold numbers."""
+
+
+def numeric_columns(table, path: Path):
+    """The table with every column of :data:`NUMERIC_COLUMNS` as float (else ConfigError).
+
+    Empty cells are NaN; text, dates or other objects in such a column are refused with a
+    message naming the file, the column, the first bad row (1-based, header excluded)
+    and its value.
+    """
+    import pandas as pd
+
+    for col in [c for c in table.columns if c in NUMERIC_COLUMNS]:
+        series = table[col]
+        if pd.api.types.is_bool_dtype(series) or not pd.api.types.is_numeric_dtype(series):
+            numbers = pd.to_numeric(series, errors="coerce")
+            bad = numbers.isna() & series.notna()
+            if pd.api.types.is_bool_dtype(series) or bad.any():
+                row = int(np.argmax(bad.to_numpy())) if bad.any() else 0
+                shown = str(series.iloc[row])[:40] if len(series) else ""
+                raise ConfigError(
+                    f"{path}: column {col!r} must hold numbers; row {row + 1} holds {shown!r}"
+                )
+            table[col] = numbers.astype(float)
+    return table
 
 
 def _require(table, columns, where: Path) -> None:
@@ -176,18 +209,16 @@ def _require(table, columns, where: Path) -> None:
 
 def _positions(nav, prefix: str, frame: str | None, where: Path):
     """``((m, 2) metres, frame)`` from ``x``/``y`` or ``lon``/``lat`` columns."""
-    from pyproj import Proj
-
-    from geofix.maps.project import local_tmerc
+    from geofix.maps.project import local_tmerc, project_lonlat
 
     if f"{prefix}x" in nav and f"{prefix}y" in nav:
         return np.column_stack([nav[f"{prefix}x"], nav[f"{prefix}y"]]).astype(float), frame
     if f"{prefix}lon" in nav and f"{prefix}lat" in nav:
         lon = nav[f"{prefix}lon"].to_numpy(float)
         lat = nav[f"{prefix}lat"].to_numpy(float)
-        if frame is None:
+        if frame is None and np.all(np.abs(lat) <= 90):
             frame = local_tmerc(float(np.mean(lon)), float(np.mean(lat)))
-        x, y = Proj(frame)(lon, lat)
+        x, y, frame = project_lonlat(lon, lat, frame, str(where))
         return np.column_stack([x, y]), frame
     raise ConfigError(f"{where}: needs columns {prefix}x, {prefix}y or {prefix}lon, {prefix}lat")
 

@@ -24,9 +24,14 @@ import numpy as np
 
 from geofix.errors import MapError
 from geofix.maps.grid import Grid
+from geofix.memory import cells_bytes, check_allocation
 
-MAX_GRID_CELLS = 50_000_000
-"""Most cells :func:`grid_soundings` will allocate (about 1.2 GB of float64 layers)."""
+GRID_CELL_BYTES = 96
+"""Peak bytes per map cell while gridding (measured with tracemalloc: about 80)."""
+GRID_SOUNDING_BYTES = 400
+"""Peak bytes per sounding while gridding (measured: about 330)."""
+MAX_COORDINATE_M = 4.0e7
+"""Largest sounding coordinate accepted, metres (the Earth's circumference)."""
 STD_VARIABLE = "z_std"
 COUNT_VARIABLE = "z_count"
 
@@ -92,17 +97,20 @@ def grid_soundings(
     Raises
     ------
     MapError
-        A non-positive cell size, fewer than 3 valid soundings, or a grid too large to
-        allocate (the message gives the estimate).
+        A non-positive cell size or fewer than 3 valid soundings.
+    MemoryBudgetError
+        A grid whose gridding would exceed the memory budget (the message gives the
+        estimate; :mod:`geofix.memory`).
     """
     import verde as vd  # type: ignore[import-untyped]  # verde ships no type information
 
     pts = np.column_stack([np.ravel(x), np.ravel(y), np.ravel(value)]).astype(float)
     pts = pts[np.isfinite(pts).all(axis=1)]
-    if not cell_m > 0:
-        raise MapError(f"gridding: cell size must be positive, got {cell_m}")
+    if not (cell_m > 0 and np.isfinite(cell_m)):
+        raise MapError(f"gridding: cell size must be positive and finite, got {cell_m}")
     if pts.shape[0] < 3:
         raise MapError(f"gridding: need at least 3 valid soundings, got {pts.shape[0]}")
+    _check_coordinates(pts)
     x0, y0, nx, ny = _layout(pts, float(cell_m))
     region = (x0 - cell_m / 2, x0 + (nx - 0.5) * cell_m, y0 - cell_m / 2, y0 + (ny - 0.5) * cell_m)
     stats, located = {}, {}
@@ -127,19 +135,39 @@ def grid_soundings(
     return GriddedMap(grid, std, count)
 
 
+def _check_coordinates(pts: np.ndarray) -> None:
+    """Refuse sounding positions beyond :data:`MAX_COORDINATE_M` of the frame's origin."""
+    far = np.abs(pts[:, :2]) > MAX_COORDINATE_M
+    if far.any():
+        row = int(np.argmax(far.any(axis=1)))
+        raise MapError(
+            f"gridding: {int(far.any(axis=1).sum())} soundings lie beyond "
+            f"{MAX_COORDINATE_M:g} m of the frame's origin (first: x {pts[row, 0]:.6g}, "
+            f"y {pts[row, 1]:.6g}); positions must be metres on the Earth"
+        )
+
+
 def _layout(pts: np.ndarray, cell: float) -> tuple[float, float, int, int]:
-    """First cell centre and cell counts covering the soundings; refuse a huge grid."""
+    """First cell centre and cell counts covering the soundings; refuse a huge grid.
+
+    The grid's peak (:data:`GRID_CELL_BYTES` per cell, :data:`GRID_SOUNDING_BYTES` per
+    sounding) is checked against the memory budget before anything is allocated.
+
+    Raises
+    ------
+    MemoryBudgetError
+        The gridding would exceed the budget (the message gives the estimate).
+    """
     lo = np.floor(pts[:, :2].min(axis=0) / cell + 0.5) * cell  # centres on multiples of cell
     hi = pts[:, :2].max(axis=0)
-    nx, ny = (np.floor((hi - lo) / cell + 0.5).astype(int) + 1).tolist()
-    nx, ny = max(nx, 2), max(ny, 2)
-    if nx * ny > MAX_GRID_CELLS:
-        need = nx * ny * 8 * 3 / 1e9
-        raise MapError(
-            f"gridding: {nx} x {ny} cells of {cell:g} m need about {need:.1f} GB "
-            f"(limit {MAX_GRID_CELLS} cells); use a larger --cell-m"
-        )
-    return float(lo[0]), float(lo[1]), nx, ny
+    counts = np.maximum(np.floor((hi - lo) / cell + 0.5) + 1.0, 2.0)  # floats: never overflow
+    fx, fy = (float(c) for c in counts)
+    check_allocation(
+        cells_bytes(fx, fy, itemsize=GRID_CELL_BYTES)
+        + cells_bytes(pts.shape[0], itemsize=GRID_SOUNDING_BYTES),
+        f"gridding {fx:.0f} x {fy:.0f} cells of {cell:g} m (use a larger --cell-m)",
+    )
+    return float(lo[0]), float(lo[1]), int(fx), int(fy)
 
 
 def _interpolate(centroids, block_mean, centres, x0, y0, nx, ny, cell, max_gap_cells):
@@ -181,12 +209,25 @@ def error_layer_grid(grid: Grid, std: np.ndarray) -> Grid | None:
 
 
 def save_gridded(gridded: GriddedMap, path: str | Path) -> Path:
-    """Write the map (:func:`geofix.maps.io.save_grid`) plus ``z_std`` and ``z_count``."""
+    """Write the map (:func:`geofix.maps.io.save_grid`) plus ``z_std`` and ``z_count``.
+
+    The three variables are written to a temporary file renamed into place when complete
+    (:mod:`geofix._atomic`): a killed or failed write leaves no map without its layers.
+
+    Raises
+    ------
+    MapError
+        The map holds infinite cells (values too large to grid).
+    OutputError
+        The file cannot be written (disk full, permission denied, not a file).
+    """
     import xarray as xr
 
-    from geofix.maps.io import save_grid
+    from geofix._atomic import write_atomic
+    from geofix.maps.io import _require_finite, _write_grid_file
 
-    path = save_grid(gridded.grid, path)
+    path = Path(path)
+    _require_finite(gridded.grid.values, f"gridded map {gridded.grid.name!r} (not written)")
     layers = xr.Dataset(
         {
             STD_VARIABLE: (("y", "x"), gridded.std, {"units": gridded.grid.units}),
@@ -196,11 +237,7 @@ def save_gridded(gridded: GriddedMap, path: str | Path) -> Path:
     )
     layers[STD_VARIABLE].attrs["long_name"] = "standard deviation of the soundings in the cell"
     layers[COUNT_VARIABLE].attrs["long_name"] = "number of soundings in the cell"
-    try:
-        layers.to_netcdf(path, mode="a")
-    except (OSError, ValueError) as exc:
-        raise MapError(f"cannot write the uncertainty layer to {path}: {exc}") from None
-    return path
+    return write_atomic(path, lambda part: _write_grid_file(gridded.grid, part, layers=layers))
 
 
 def load_map_error(path: str | Path) -> Grid | None:

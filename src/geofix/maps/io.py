@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from geofix._atomic import write_atomic
 from geofix.errors import MapError
 from geofix.maps import project
 from geofix.maps.bundled import BUILTIN_PREFIX, BUNDLED_MAPS, builtin_name, builtin_path
@@ -41,6 +42,9 @@ DEFAULT_UNITS = {"depth": "m", "gravity": "mGal"}
 _GRAVITY_WORDS = ("grav", "mgal", "free-air", "free air", "freeair", "anomaly")
 _X_NAMES = ("x", "lon", "longitude", "long", "easting", "east")
 _Y_NAMES = ("y", "lat", "latitude", "northing", "north")
+#: Attribute of a saved grid whose infinite cells are meaningful (see :func:`save_grid`).
+INFINITE_ATTR = "infinite_cells"
+_SAVED_LABELS = {"kind": "depth", "units": "m", "name": "map"}
 #: Bytes of float64 read from a file at a time (a block of whole rows).
 READ_BLOCK_BYTES = 8 * 2**20
 
@@ -125,7 +129,7 @@ def load_grid(
         raise MapError(f"map kind must be one of {KINDS}, got {kind!r}")
     source, file_path, default_kind = _resolve(path)
     raw = _read(file_path, variable, source, float32_within, resample_m is not None)
-    if raw.saved is None:  # geofix's own grids may hold inf (e.g. a CRLB layer)
+    if raw.saved is None or not raw.saved.get("infinite_ok"):  # a CRLB layer may hold inf
         _require_finite(raw.values, source)
     raw = _crop(raw, region, source)
     if raw.saved is not None:
@@ -138,8 +142,11 @@ def load_grid(
     return _to_metric(raw, resample_m, meta, source, labels, float32_within)
 
 
-def save_grid(grid: Grid, path: str | Path) -> Path:
+def save_grid(grid: Grid, path: str | Path, infinite_ok: bool = False) -> Path:
     """Write a :class:`Grid` to netCDF so that :func:`load_grid` restores it exactly.
+
+    The file is written to a temporary name and renamed when complete
+    (:mod:`geofix._atomic`): it is whole or absent.
 
     Parameters
     ----------
@@ -147,6 +154,10 @@ def save_grid(grid: Grid, path: str | Path) -> Path:
         The map to save.
     path : str or pathlib.Path
         Output file (netCDF-4).
+    infinite_ok : bool
+        Allow ``+-inf`` cells (a layer such as an unbounded CRLB, marked
+        ``infinite_cells = "allowed"``); a map with infinite cells is refused otherwise,
+        and :func:`load_grid` refuses to read one without that mark.
 
     Returns
     -------
@@ -156,9 +167,16 @@ def save_grid(grid: Grid, path: str | Path) -> Path:
         ``geofix_grid = 1``. ``meta`` is stored as JSON: values and geometry come back
         exactly, tuples in ``meta`` come back as lists.
     """
+    path = Path(path)
+    if not infinite_ok:
+        _require_finite(grid.values, f"map {grid.name!r} (not written to {path})")
+    return write_atomic(path, lambda part: _write_grid_file(grid, part, infinite_ok))
+
+
+def _write_grid_file(grid: Grid, path: Path, infinite_ok: bool = False, layers=None) -> None:
+    """Write ``grid`` (and the extra variables of the dataset ``layers``) to ``path``."""
     import xarray as xr
 
-    path = Path(path)
     attrs = {
         "geofix_grid": 1,
         "x0": float(grid.x0),
@@ -170,16 +188,16 @@ def save_grid(grid: Grid, path: str | Path) -> Path:
         "name": grid.name,
         "meta_json": json.dumps(grid.meta, default=str),
     }
+    if infinite_ok:
+        attrs[INFINITE_ATTR] = "allowed"
     values = xr.DataArray(np.asarray(grid.values, dtype=float), dims=("y", "x"))
     values.attrs = {"units": grid.units, "long_name": grid.kind}
     ds = xr.Dataset({"z": values}, coords={"x": grid.x, "y": grid.y}, attrs=attrs)
     ds["x"].attrs["units"] = "m"
     ds["y"].attrs["units"] = "m"
-    try:
-        ds.to_netcdf(path)
-    except (OSError, ValueError) as exc:
-        raise MapError(f"cannot write map to {path}: {_one_line(exc)}") from exc
-    return path
+    if layers is not None:
+        ds = ds.merge(layers)
+    ds.to_netcdf(path)
 
 
 # ---------------------------------------------------------------------- resolution
@@ -230,7 +248,7 @@ def _sniff(path: Path, source: str) -> str:
     for magic, kind in _SIGNATURES.items():
         if head.startswith(magic) or at512.startswith(magic):
             return kind
-    raise MapError(f"not a netCDF / GeoTIFF / BAG file: {source} (starts with {head[:4]!r})")
+    raise MapError(f"not a netCDF / GeoTIFF / BAG file: {source}")
 
 
 def _read(
@@ -301,7 +319,9 @@ def _read_netcdf(path: Path, variable: str | None, source: str, precision=(None,
         return saved
     ds = _open_netcdf(path, source)
     with ds:
-        if int(ds.attrs.get("geofix_grid", 0)) == 1:
+        if _is_saved(ds.attrs, source):
+            if "z" not in ds:
+                raise MapError(f"{source}: a geofix map without its variable 'z'")
             return _saved_raw(ds.attrs, ds["z"], source, saved_within)
         var = _pick_variable(ds, variable, source)
         da = _as_yx(ds[var], source)
@@ -466,7 +486,7 @@ def _read_saved_netcdf4(path: Path, source: str, float32_within=None) -> _Raw | 
     with ds:
         attrs = {name: ds.getncattr(name) for name in ds.ncattrs()}
         var = ds.variables.get("z")
-        if int(attrs.get("geofix_grid", 0)) != 1 or var is None or not _plain_floats(var):
+        if not _is_saved(attrs, source) or var is None or not _plain_floats(var):
             return None
         var.set_auto_maskandscale(False)
         return _saved_raw(attrs, _Rows(var), source, float32_within)
@@ -499,14 +519,61 @@ class _Rows:
 
 def _saved_raw(a: dict, z, source: str, float32_within: float | None = None) -> _Raw:
     """A grid written by :func:`save_grid`: its attributes ``a`` and its variable ``z``."""
+    geometry = _saved_geometry(a, source)
+    saved = _saved_labels(a, source)
     values = _numbers(z, "variable 'z'", source, (False, False), float32_within)
+    if values.ndim != 2:
+        raise MapError(f"{source}: variable 'z' has {values.ndim} dimensions, expected 2")
     ny, nx = values.shape
-    x = float(a["x0"]) + float(a["dx"]) * np.arange(nx)
-    y = float(a["y0"]) + float(a["dy"]) * np.arange(ny)
-    saved = {k: a[k] for k in ("kind", "units", "name")}
-    saved["meta"] = json.loads(a.get("meta_json", "{}"))
-    spacing = (float(a["dx"]), float(a["dy"]))
+    x0, y0, dx, dy = geometry
+    x = x0 + dx * np.arange(nx)
+    y = y0 + dy * np.arange(ny)
+    spacing = (dx, dy)
     return _Raw(values, x, y, False, "geofix", "z", saved["units"], spacing=spacing, saved=saved)
+
+
+def _is_saved(attrs, source: str) -> bool:
+    """Whether the attributes mark a grid written by :func:`save_grid` (MapError if garbled)."""
+    marker = attrs.get("geofix_grid", 0)
+    try:
+        return int(np.asarray(marker).item()) == 1
+    except (TypeError, ValueError, OverflowError):
+        raise MapError(f"{source}: attribute geofix_grid is not a number") from None
+
+
+def _saved_geometry(a, source: str) -> tuple[float, float, float, float]:
+    """``(x0, y0, dx, dy)`` of a saved grid: finite metres, positive steps (else MapError)."""
+    out = []
+    for key in ("x0", "y0", "dx", "dy"):
+        try:
+            value = float(np.asarray(a[key]).item())
+        except KeyError:
+            raise MapError(f"{source}: a geofix map without its attribute {key}") from None
+        except (TypeError, ValueError, OverflowError):
+            raise MapError(f"{source}: attribute {key} is not a number") from None
+        if not np.isfinite(value) or (key in ("dx", "dy") and value <= 0):
+            raise MapError(f"{source}: attribute {key} = {value:g} is not a valid map geometry")
+        out.append(value)
+    return out[0], out[1], out[2], out[3]
+
+
+def _saved_labels(a, source: str) -> dict:
+    """Kind, units, name and meta of a saved grid (MapError if garbled)."""
+    saved: dict = {k: str(a.get(k, default)) for k, default in _SAVED_LABELS.items()}
+    if saved["kind"] not in KINDS:
+        raise MapError(f"{source}: attribute kind = {saved['kind'][:40]!r}, not one of {KINDS}")
+    try:
+        meta = json.loads(str(a.get("meta_json", "{}")))
+    except (ValueError, RecursionError):
+        raise MapError(f"{source}: attribute meta_json is not valid JSON") from None
+    if not isinstance(meta, dict):
+        raise MapError(f"{source}: attribute meta_json is not a JSON object")
+    projection = meta.get("projection")
+    if projection is not None and not isinstance(projection, str):
+        raise MapError(f"{source}: meta_json projection is not a PROJ string")
+    saved["meta"] = meta
+    saved["infinite_ok"] = str(a.get(INFINITE_ATTR, "")) == "allowed"
+    return saved
 
 
 # ---------------------------------------------------------------------- GeoTIFF

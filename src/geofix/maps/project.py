@@ -61,6 +61,70 @@ def local_tmerc(lon0: float, lat0: float) -> str:
     )
 
 
+def frame_proj(frame: str, where: str = "frame"):
+    """The :class:`pyproj.Proj` of a PROJ string, or a MapError naming it.
+
+    Parameters
+    ----------
+    frame : str
+        PROJ string of a metric frame (e.g. :func:`local_tmerc`).
+    where : str
+        What the frame belongs to (a file, a map), for the message.
+
+    Raises
+    ------
+    MapError
+        PROJ rejects the string, or it is not a string.
+    """
+    from pyproj import Proj
+    from pyproj.exceptions import CRSError
+
+    if not isinstance(frame, str):
+        raise MapError(f"{where}: projection must be a PROJ string, got {type(frame).__name__}")
+    try:
+        return Proj(frame)
+    except (CRSError, ValueError, TypeError):
+        shown = frame if len(frame) <= 120 else f"{frame[:120]}..."
+        raise MapError(f"{where}: PROJ rejects the projection {shown!r}") from None
+
+
+def project_lonlat(lon, lat, frame: str | None, where: str) -> tuple[np.ndarray, np.ndarray, str]:
+    """Longitudes and latitudes (degrees) to ``(x, y, frame)`` metres in a metric frame.
+
+    Parameters
+    ----------
+    lon, lat : array_like
+        ``(m,)`` WGS84 degrees; NaN entries stay NaN.
+    frame : str or None
+        PROJ string of the frame (None: :func:`local_tmerc` centred on the points).
+    where : str
+        The input (a file, a table), for the messages.
+
+    Raises
+    ------
+    MapError
+        A latitude beyond +-90 or a longitude beyond +-360 degrees, no finite position,
+        or a frame PROJ rejects.
+    """
+    lon = np.asarray(lon, dtype=float)
+    lat = np.asarray(lat, dtype=float)
+    ok = np.isfinite(lon) & np.isfinite(lat)
+    if not ok.any():
+        raise MapError(f"{where}: no finite longitude / latitude")
+    bad = ok & ((np.abs(lat) > 90) | (np.abs(lon) > 360))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise MapError(
+            f"{where}: {int(bad.sum())} positions out of range (first: lon {lon[k]:.6g}, "
+            f"lat {lat[k]:.6g}); latitude must lie within -90..90, longitude -360..360 degrees"
+        )
+    if frame is None:
+        lon0 = 0.5 * (np.min(lon[ok]) + np.max(lon[ok]))
+        frame = local_tmerc(float(lon0), 0.5 * float(np.min(lat[ok]) + np.max(lat[ok])))
+    x, y = frame_proj(frame, where)(lon, lat)
+    return np.asarray(x, dtype=float), np.asarray(y, dtype=float), frame
+
+
 def native_spacing_m(lon: np.ndarray, lat: np.ndarray, proj: str) -> tuple[float, float]:
     """Size of one source cell at the grid centre, metres east and north.
 

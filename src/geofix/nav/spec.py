@@ -10,6 +10,9 @@ from geofix._strict import Strict
 
 #: No position error on Earth is larger than half its circumference, metres.
 EARTH_HALF_CIRCUMFERENCE_M = 2.0e7
+#: Largest INS or DVL error rate or noise accepted (in each key's own units): far beyond
+#: any real sensor, small enough that the error-state arithmetic stays finite.
+MAX_RATE = 1.0e9
 
 
 class InsSpec(Strict):
@@ -29,14 +32,14 @@ class InsSpec(Strict):
 
     initial_error_m: tuple[float, float] = (0.0, 0.0)
     initial_error_std_m: float = Field(default=0.0, ge=0, le=EARTH_HALF_CIRCUMFERENCE_M)
-    velocity_error_m_s: float = Field(default=0.0, ge=0)
-    heading_error_deg: float = 0.0
-    gyro_bias_deg_h: float = Field(default=0.0, ge=0)
-    gyro_noise_deg_rt_h: float = Field(default=0.0, ge=0)
-    accel_bias_ug: float = Field(default=0.0, ge=0)
-    accel_noise_ug_rt_hz: float = Field(default=0.0, ge=0)
+    velocity_error_m_s: float = Field(default=0.0, ge=0, le=MAX_RATE)
+    heading_error_deg: float = Field(default=0.0, ge=-MAX_RATE, le=MAX_RATE)
+    gyro_bias_deg_h: float = Field(default=0.0, ge=0, le=MAX_RATE)
+    gyro_noise_deg_rt_h: float = Field(default=0.0, ge=0, le=MAX_RATE)
+    accel_bias_ug: float = Field(default=0.0, ge=0, le=MAX_RATE)
+    accel_noise_ug_rt_hz: float = Field(default=0.0, ge=0, le=MAX_RATE)
     schuler: bool = True
-    prior_sigma_m: float | None = Field(default=None, gt=0)
+    prior_sigma_m: float | None = Field(default=None, gt=0, le=EARTH_HALF_CIRCUMFERENCE_M)
     mode: Literal["free", "dvl"] = "free"
     latitude_deg: float | None = Field(default=None, ge=-90, le=90)
 
@@ -55,6 +58,6 @@ class DvlSpec(Strict):
     error of random sign; it is used by ``ins.mode: dvl`` (dead reckoning on the DVL).
     """
 
-    noise_std_m_s: float = Field(default=0.01, ge=0)
-    bias_m_s: float = Field(default=0.0, ge=0)
-    scale_error: float = Field(default=0.0, ge=0)
+    noise_std_m_s: float = Field(default=0.01, ge=0, le=MAX_RATE)
+    bias_m_s: float = Field(default=0.0, ge=0, le=MAX_RATE)
+    scale_error: float = Field(default=0.0, ge=0, le=MAX_RATE)

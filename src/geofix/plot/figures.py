@@ -287,10 +287,25 @@ def success_rate_figure(panels: dict[str, dict[str, dict[str, float]]], xlabel: 
     return fig
 
 
-def save_figure(fig, path: str | Path, dpi: int = 120) -> Path:
-    """Write a figure to ``path`` (PNG by suffix), creating folders; return the path."""
+def save_figure(fig, path: str | Path, dpi: int = 120, metadata: dict | None = None) -> Path:
+    """Write a figure to ``path`` (format by suffix, PNG by default), creating folders.
+
+    The image is written to a temporary name and renamed when complete
+    (:mod:`geofix._atomic`): it is whole or absent. ``metadata`` (text keys, e.g. a
+    run id) is stored in the file where the format allows it (PNG text chunks).
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+    """
+    from geofix._atomic import write_atomic
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
-    _pyplot().close(fig)
-    return path
+    fmt = path.suffix.lstrip(".").lower() or "png"
+    try:
+        return write_atomic(
+            path, lambda part: fig.savefig(part, dpi=dpi, format=fmt, metadata=metadata)
+        )
+    finally:
+        _pyplot().close(fig)

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from geofix._atomic import write_atomic
 from geofix.errors import ConfigError, GeofixError
 from geofix.maps.grid import Grid
 from geofix.memory import cells_bytes, check_allocation
@@ -101,11 +102,7 @@ def export_trials(scenario, path: str | Path, trials: int | None = None, seed=No
         _check_priors_size(scenario.trials, shape)
     runs = [simulate_trial(scenario, grid, i) for i in range(scenario.trials)]
     dataset = trials_dataset(grid, runs, _scenario_attrs(scenario))
-    try:
-        dataset.to_netcdf(path)
-    except (OSError, ValueError) as exc:
-        raise GeofixError(f"cannot write trials to {path}: {exc}") from None
-    return path
+    return write_atomic(path, dataset.to_netcdf)  # whole or absent
 
 
 def _scenario_attrs(scenario) -> dict:

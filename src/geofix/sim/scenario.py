@@ -95,6 +95,10 @@ class TrackSpec(Strict):
     turn_std_deg: float = Field(default=0.0, ge=0)
 
 
+MAX_TRIALS = 1_000_000
+"""Most trials a campaign runs (its results table is held in memory at the end)."""
+
+
 class Scenario(Strict):
     """A validated scenario. Build with :func:`load_scenario` or ``Scenario(**dict)``."""
 
@@ -104,7 +108,7 @@ class Scenario(Strict):
     sensor: SensorSpec
     ins: InsSpec = InsSpec()
     dvl: DvlSpec | None = None
-    trials: int = Field(default=10, ge=1)
+    trials: int = Field(default=10, ge=1, le=MAX_TRIALS)
     seed: int = Field(default=0, ge=0)
     seabed: SeabedSpec | None = None
     base_dir: str = Field(default=".", exclude=True)
@@ -156,12 +160,15 @@ def with_overrides(scenario: Scenario, trials: int | None = None, seed: int | No
     Raises
     ------
     ConfigError
-        ``trials`` below 1 or ``seed`` negative (the message names the option).
+        ``trials`` below 1 or above :data:`MAX_TRIALS`, or ``seed`` negative (the message
+        names the option).
     """
     update = {}
     if trials is not None:
         if int(trials) < 1:
             raise ConfigError(f"trials (--trials) must be at least 1, got {trials}")
+        if int(trials) > MAX_TRIALS:
+            raise ConfigError(f"trials (--trials) must be at most {MAX_TRIALS}, got {trials}")
         update["trials"] = int(trials)
     if seed is not None:
         if int(seed) < 0:
@@ -215,11 +222,28 @@ def load_scenario(path: str | Path) -> Scenario:
         text = path.read_text()
     except OSError as exc:
         raise ConfigError(f"cannot read scenario {path}: {exc.strerror or exc}") from None
+    data = _parse_yaml(text, path)
     try:
-        data = yaml.safe_load(text)
+        return scenario_from_dict(data, base_dir=path.parent, source=str(path))
+    except RecursionError:
+        raise ConfigError(f"scenario {path}: nested too deeply to be a scenario") from None
+
+
+def _parse_yaml(text: str, path: Path):
+    """The YAML document of a scenario file, or a ConfigError naming the file.
+
+    Beyond syntax errors, a document nested thousands of levels deep and an integer of
+    more digits than Python converts (4300) are refused in one line.
+    """
+    try:
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"scenario {path}{_yaml_problem(exc)}") from None
-    return scenario_from_dict(data, base_dir=path.parent, source=str(path))
+    except RecursionError:
+        raise ConfigError(f"scenario {path}: not valid YAML: nested too deeply") from None
+    except ValueError as exc:  # an integer of thousands of digits
+        what = "a number has too many digits" if "digits" in str(exc) else str(exc)[:80]
+        raise ConfigError(f"scenario {path}: not valid YAML: {what}") from None
 
 
 def _yaml_problem(exc: yaml.YAMLError) -> str:
