@@ -97,7 +97,8 @@ def grid_soundings(
     Raises
     ------
     MapError
-        A non-positive cell size or fewer than 3 valid soundings.
+        A non-positive or infinite cell size, fewer than 3 valid soundings, or soundings
+        beyond :data:`MAX_COORDINATE_M` of the frame's origin.
     MemoryBudgetError
         A grid whose gridding would exceed the memory budget (the message gives the
         estimate; :mod:`geofix.memory`).
