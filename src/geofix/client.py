@@ -59,14 +59,37 @@ class Client:
                 part.close()
 
     def send_line(self, line: bytes) -> dict:
-        """Send one raw line (a newline is added) and return the reply."""
-        self._file.write(line.rstrip(b"\n") + b"\n")
-        self._file.flush()
+        """Send one raw line (a newline is added) and return the reply.
+
+        Raises
+        ------
+        ServerError
+            The connection is closed or broken (the reply the server sent before closing
+            it, if any, is returned instead).
+        """
+        try:
+            self._file.write(line.rstrip(b"\n") + b"\n")
+            self._file.flush()
+        except OSError as exc:
+            with contextlib.suppress(ServerError):
+                return self.read_reply()  # e.g. the refusal of an oversized line
+            raise ServerError(f"the connection failed: {exc}") from None
         return self.read_reply()
 
     def read_reply(self) -> dict:
-        """Read one reply line."""
-        reply = self._file.readline()
+        """Read one reply line.
+
+        Raises
+        ------
+        ServerError
+            The server closed the connection, it broke, or no reply came in time.
+        """
+        try:
+            reply = self._file.readline()
+        except TimeoutError:
+            raise ServerError("no reply within the client's timeout") from None
+        except OSError as exc:
+            raise ServerError(f"the connection failed: {exc}") from None
         if not reply:
             raise ServerError("the server closed the connection")
         return orjson.loads(reply)

@@ -31,6 +31,7 @@ import numpy as np
 
 from geofix.errors import ConfigError
 from geofix.filters.online import STATUSES, Estimate, NavigatorSettings, OnlineFilter
+from geofix.filters.sizing import FilterSize, check_filter_budget, filter_size
 from geofix.maps.grid import Grid
 
 
@@ -81,9 +82,51 @@ class Navigator(OnlineFilter):
             )
         if not isinstance(settings, NavigatorSettings):
             settings = NavigatorSettings.from_dict(settings)
+        check_filter_budget(filt, settings, grid)  # before the filter holds a point
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         super().__init__(filt, grid, settings, rng, map_error, ins_model)
         self.method = method if isinstance(method, str) else filt.name
+
+
+def method_size(method, settings=None, grid: Grid | None = None, beams=None) -> FilterSize | None:
+    """:func:`geofix.filters.sizing.filter_size` of a method spec or filter instance.
+
+    Parameters
+    ----------
+    method : str or filter
+        ``"pf:particles=2000"``, or a filter.
+    settings : NavigatorSettings or dict, optional
+        The navigator's settings.
+    grid : Grid, optional
+        The map (for the representation-error layer of ``map_model`` other than exact).
+    beams : int, optional
+        Most beams of a ping.
+
+    Raises
+    ------
+    ConfigError
+        An unknown method or setting.
+    """
+    from geofix.methods import parse_method_spec
+
+    filt = parse_method_spec(method) if isinstance(method, str) else method
+    return filter_size(filt, settings, grid, beams)
+
+
+def check_method_budget(method, settings=None, grid: Grid | None = None, beams=None):
+    """:func:`geofix.filters.sizing.check_filter_budget` of a method spec or filter.
+
+    Raises
+    ------
+    ConfigError
+        An unknown method or setting.
+    MemoryBudgetError
+        The filter would exceed the memory budget (the message gives the estimate).
+    """
+    from geofix.methods import parse_method_spec
+
+    filt = parse_method_spec(method) if isinstance(method, str) else method
+    return check_filter_budget(filt, settings, grid, beams)
 
 
 __all__ = ["STATUSES", "Estimate", "Navigator", "NavigatorSettings"]

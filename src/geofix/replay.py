@@ -168,8 +168,7 @@ def replay(
         ``estimates[method]`` one :class:`Estimate` per ping; ``summary`` the JSON of
         ``geofix replay --json``.
     """
-    from geofix.filters.sizing import check_method_budget
-    from geofix.navigator import Navigator
+    from geofix.navigator import Navigator, check_method_budget
 
     if not methods:
         raise ConfigError("replay: give at least one --method")

@@ -27,9 +27,18 @@ fallback, the navigation plus the last good offset with the covariance grown sin
 rules are those of :mod:`geofix.filters.online`;
 ``{"ok": true, "type": "config", "method": spec}`` to a ``config``), or
 ``{"ok": false, "error": "one line naming the problem"}`` (a refused ``config`` leaves
-the connection's navigator as it was). A malformed, out-of-order or
-oversized message gets an error reply and the connection stays usable; a client that
-disconnects mid-stream only ends its own connection.
+the connection's navigator as it was). A malformed or out-of-order message, or one
+whose numbers lie outside physical ranges (times, positions, angles, beam offsets, a
+depth beyond +-12 km or a gravity anomaly beyond +-1000 mGal), gets an error reply and
+the connection stays usable; an estimate that is no longer finite is an error reply and
+a new navigator (``init`` again). A line longer than ``max_line_bytes`` gets an error
+reply and closes its connection; a client that disconnects mid-stream only ends its own
+connection.
+
+Updates run on worker threads, never on the event loop, within a time budget; the
+connections, their buffered bytes, their filters' sizes and the server's memory are
+bounded (:class:`geofix.server_limits.ServerLimits`); Ctrl-C and SIGTERM close every
+connection and return.
 """
 
 from __future__ import annotations
@@ -39,19 +48,41 @@ import contextlib
 import itertools
 import json
 import math
+import signal
 import threading
 from collections.abc import Callable
 
 import numpy as np
 import orjson
 
-from geofix.errors import GeofixError
+from geofix.conventions import PHYSICAL_LIMITS
+from geofix.errors import ConfigError, GeofixError, MemoryBudgetError
 from geofix.maps.grid import Grid
+from geofix.server_limits import (
+    MAX_LINE_BYTES,
+    MemoryLedger,
+    RateLog,
+    ServerLimits,
+    UpdateWorkers,
+    describe_os_error,
+    descriptor_headroom,
+)
 
-MAX_LINE_BYTES = 1 << 20
-"""Longest request line, bytes (1 MiB: about 30 000 beams of three numbers)."""
 READ_CHUNK = 1 << 16
 REQUEST_TYPES = ("init", "nav", "ping", "estimate", "config")
+MAX_ABS_TIME_S = 1e10
+"""Largest ``|t|`` of a request, seconds (about 317 years: Unix and GPS times fit)."""
+MAX_MISSION_S = 3.2e7
+"""Largest distance of a request's ``t`` from its ``init``'s, seconds (about a year)."""
+MAX_COORD_M = 1e8
+"""Largest ``|x|``, ``|y|`` and ``sigma_m``, metres (2.5 times the Earth's circumference)."""
+MAX_OFFSET_M = 1e5
+"""Largest ``|across_m|``, ``|along_m|``, ``|down_m|`` of a beam, metres."""
+MAX_ANGLE_DEG = {"heading_deg": 1e6, "roll_deg": 180.0, "pitch_deg": 180.0, "lat": 90.0}
+"""Largest ``|angle|`` of each angle key, degrees (``lon``: 360)."""
+VALUE_RANGES = PHYSICAL_LIMITS
+"""Largest ``|value|`` of a beam on a map of each kind: metres of depth, mGal of gravity
+(:data:`geofix.conventions.PHYSICAL_LIMITS`)."""
 
 
 class RequestError(GeofixError):
@@ -104,22 +135,68 @@ def _typed(request) -> dict:
     if not isinstance(request, dict):
         raise RequestError("request must be a JSON object")
     kind = request.get("type")
-    if kind not in REQUEST_TYPES:
+    if not isinstance(kind, str):
+        shown = "missing" if "type" not in request else f"a {type(kind).__name__}"
         raise RequestError(
-            f"unknown request type {str(kind)[:40]!r}; use {', '.join(REQUEST_TYPES)}"
+            f"request type must be a string ({shown}); use {', '.join(REQUEST_TYPES)}"
         )
+    if kind not in REQUEST_TYPES:
+        raise RequestError(f"unknown request type {kind[:40]!r}; use {', '.join(REQUEST_TYPES)}")
     return request
 
 
-def _number(request: dict, key: str) -> float:
+def _number(request: dict, key: str, limit: float | None = None) -> float:
+    """``request[key]`` as a finite float, at most ``limit`` in magnitude."""
     value = request.get(key)
     if isinstance(value, bool) or not isinstance(value, int | float):
         shown = "missing" if key not in request else type(value).__name__
         raise RequestError(f"{request['type']}: {key} must be a number ({shown})")
-    out = float(value)
+    try:
+        out = float(value)
+    except OverflowError:
+        out = math.inf
     if not math.isfinite(out):
         raise RequestError(f"{request['type']}: {key} must be finite")
+    if limit is not None and abs(out) > limit:
+        raise RequestError(f"{request['type']}: {key} = {out:g} is beyond +-{limit:g}")
     return out
+
+
+def _angle(request: dict, key: str) -> float:
+    """An angle of the request, degrees, within its :data:`MAX_ANGLE_DEG` range."""
+    return _number(request, key, MAX_ANGLE_DEG.get(key, 360.0))
+
+
+def check_beam_ranges(beams: np.ndarray, kind: str) -> None:
+    """Refuse beams whose offsets or values lie outside physical ranges.
+
+    Parameters
+    ----------
+    beams : numpy.ndarray
+        ``(b, 3)`` or ``(b, 4)`` beams, offsets in metres, the value last (NaN: missing).
+    kind : str
+        The map's kind: a depth within +-12 km, a gravity anomaly within +-1000 mGal
+        (:data:`VALUE_RANGES`).
+
+    Raises
+    ------
+    RequestError
+        Names the first beam out of range.
+    """
+    offsets, values = beams[:, :-1], beams[:, -1]
+    far = np.flatnonzero(~(np.abs(offsets) <= MAX_OFFSET_M).all(axis=1))
+    if far.size:
+        raise RequestError(
+            f"ping: beam {int(far[0])} offset beyond +-{MAX_OFFSET_M:g} m (or not finite)"
+        )
+    limit = VALUE_RANGES.get(kind, math.inf)
+    wild = np.flatnonzero(np.abs(values) > limit)
+    if wild.size:
+        unit = "m" if kind == "depth" else "mGal"
+        raise RequestError(
+            f"ping: beam {int(wild[0])} value {values[wild[0]]:g} is beyond +-{limit:g} {unit} "
+            f"for a {kind} map"
+        )
 
 
 _NUMBER_OR_NULL = frozenset({int, float, type(None)})
@@ -208,18 +285,39 @@ class Session:
     ins_model : InsErrorModel, optional
         The INS error model of a filter on the INS error state (``mpf``,
         ``pmf:model=errstate``; ``geofix serve --ins SCENARIO.yaml``).
+    limits : ServerLimits, optional
+        The server's limits (``max_points``, ``max_line_bytes``); the defaults when None.
+    ledger : MemoryLedger, optional
+        The server's memory ledger: a ``config`` reserves its filter's memory there
+        first. Without one, the filter is checked against the memory budget alone.
     """
 
     def __init__(
-        self, grid: Grid, method: str, settings=None, seed: int = 0, map_error=None, ins_model=None
+        self,
+        grid: Grid,
+        method: str,
+        settings=None,
+        seed: int = 0,
+        map_error=None,
+        ins_model=None,
+        limits: ServerLimits | None = None,
+        ledger: MemoryLedger | None = None,
     ):
-        from geofix.navigator import Navigator
-
-        self.navigator = Navigator(grid, method, settings, seed, map_error, ins_model)
         self.grid = grid
+        self.limits = limits or ServerLimits()
+        self.ledger = ledger
         self._defaults = (method, settings, seed, map_error, ins_model)
+        self._current = (method, ins_model)
+        self._reserve(method)
+        self.navigator = self._navigator(method, ins_model)
         self._proj: Callable[[float, float], tuple[float, float]] | None = None  # lon, lat -> x, y
         self._line = b""
+        self._t0: float | None = None
+
+    def close(self) -> None:
+        """Give back this session's memory reservation."""
+        if self.ledger is not None:
+            self.ledger.release(id(self))
 
     def handle(self, line: bytes) -> dict:
         """The reply to one request line (never raises)."""
@@ -229,16 +327,79 @@ class Session:
             if request["type"] == "config":
                 return {"ok": True, "type": "config", "method": self._config(request)}
             estimate = getattr(self, f"_{request['type']}")(request)
-            return {"ok": True, "type": request["type"], **estimate.to_dict()}
+            return self._finite_reply({"ok": True, "type": request["type"], **estimate.to_dict()})
         except GeofixError as exc:
             return {"ok": False, "error": str(exc).splitlines()[0] if str(exc) else "error"}
+        except RecursionError:
+            return {"ok": False, "error": "request nested too deeply"}
         except Exception as exc:  # a bug must not end the connection
             return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"[:200]}
 
+    def _finite_reply(self, reply: dict) -> dict:
+        """``reply`` if JSON can carry it; else an error, and a new navigator (see below).
+
+        A reply with a NaN or an infinity means the navigator's state is no longer
+        finite; every later reply would be the same. The connection's navigator is
+        built again (same method and INS model), so the next ``init`` starts afresh.
+        """
+        try:
+            _require_finite(reply)
+            return reply
+        except ValueError:
+            self.navigator = self._navigator(*self._current)
+            self._t0 = None
+        raise RequestError(
+            f"{reply['type']}: the estimate is not finite; the navigator starts again (send init)"
+        )
+
+    def _navigator(self, method, ins_model):
+        from geofix.navigator import Navigator
+
+        _, settings, seed, map_error, _ = self._defaults
+        return Navigator(self.grid, method, settings, seed, map_error, ins_model)
+
+    def _reserve(self, method) -> None:
+        """Reserve (or check against the budget) the memory of ``method``'s filter.
+
+        Raises
+        ------
+        RequestError
+            More points than ``max_points``.
+        MemoryBudgetError
+            The server's memory budget cannot hold it (the connection keeps its reservation).
+        """
+        from geofix.navigator import method_size
+
+        size = method_size(method, self._defaults[1], self.grid)
+        state, update = (0.0, 0.0) if size is None else (size.state_bytes, size.update_bytes)
+        if size is not None and size.points > self.limits.max_points:
+            raise RequestError(
+                f"{size.what}: {size.points} points, more than the server's max_points = "
+                f"{self.limits.max_points}"
+            )
+        what = "a connection" if size is None else size.what
+        if self.ledger is not None:
+            self.ledger.reserve(id(self), state + self.limits.max_line_bytes, update, what)
+        else:
+            from geofix.memory import check_allocation
+
+            check_allocation(state + update, what)
+        self.points = 0 if size is None else size.points
+
+    def _time(self, request: dict) -> float:
+        """The request's ``t``, within :data:`MAX_ABS_TIME_S` and the mission span."""
+        t = _number(request, "t", MAX_ABS_TIME_S)
+        if self._t0 is not None and abs(t - self._t0) > MAX_MISSION_S:
+            raise RequestError(
+                f"{request['type']}: t = {t:g} s is more than {MAX_MISSION_S:g} s from the "
+                f"init time {self._t0:g} s"
+            )
+        return t
+
     def _position(self, request: dict) -> tuple[float, float]:
         if "x" in request or "y" in request or "lon" not in request:
-            return _number(request, "x"), _number(request, "y")
-        lon, lat = _number(request, "lon"), _number(request, "lat")
+            return _number(request, "x", MAX_COORD_M), _number(request, "y", MAX_COORD_M)
+        lon, lat = _angle(request, "lon"), _angle(request, "lat")
         frame = self.grid.meta.get("projection")
         if not frame:
             raise RequestError(f"{request['type']}: the map is metric; send x and y")
@@ -250,43 +411,59 @@ class Session:
         return float(x), float(y)
 
     def _init(self, request: dict):
-        t = _number(request, "t")
+        t = _number(request, "t", MAX_ABS_TIME_S)
         xy = self._position(request)
-        sigma = _number(request, "sigma_m")
-        heading = _number(request, "heading_deg") if "heading_deg" in request else 0.0
-        return self.navigator.init(t, xy, sigma, float(np.deg2rad(heading)))
+        sigma = _number(request, "sigma_m", MAX_COORD_M)
+        heading = _angle(request, "heading_deg") if "heading_deg" in request else 0.0
+        estimate = self.navigator.init(t, xy, sigma, float(np.deg2rad(heading)))
+        self._t0 = t
+        return estimate
 
     def _nav(self, request: dict):
-        t = _number(request, "t")
+        t = self._time(request)
         xy = self._position(request)
-        heading = float(np.deg2rad(_number(request, "heading_deg")))
+        heading = float(np.deg2rad(_angle(request, "heading_deg")))
         return self.navigator.motion(t, xy, heading)
 
     def _ping(self, request: dict):
         beams = _beams(request, self.navigator.settings.max_beams, self._line)
+        check_beam_ranges(beams, self.grid.kind)
         roll, pitch = (
-            float(np.deg2rad(_number(request, key))) if key in request else None
+            float(np.deg2rad(_angle(request, key))) if key in request else None
             for key in ("roll_deg", "pitch_deg")
         )
-        return self.navigator.measure(_number(request, "t"), beams, roll=roll, pitch=pitch)
+        return self.navigator.measure(self._time(request), beams, roll=roll, pitch=pitch)
 
     def _estimate(self, request: dict):
         return self.navigator.estimate()
 
     def _config(self, request: dict) -> str:
-        """A new navigator with this connection's method and INS model; its spec."""
-        from geofix.navigator import Navigator
+        """A new navigator with this connection's method and INS model; its spec.
 
+        The filter's memory is reserved before it is built: a refused ``config`` leaves
+        the connection's navigator, and its reservation, as they were.
+        """
         unknown = sorted(set(request) - {"type", "method", "ins", "dvl"})
         if unknown:
             raise RequestError(f"config: unknown keys {', '.join(unknown)[:80]}")
-        method, settings, seed, map_error, ins_model = self._defaults
+        method, _, _, _, ins_model = self._defaults
         method = request.get("method", method)
         if not isinstance(method, str) or not method:
             raise RequestError("config: method must be a method specification string")
         if "ins" in request or "dvl" in request:
             ins_model = _ins_model(request.get("ins"), request.get("dvl"))
-        self.navigator = Navigator(self.grid, method, settings, seed, map_error, ins_model)
+        previous = self._current
+        try:
+            self._reserve(method)
+        except MemoryBudgetError as exc:
+            raise RequestError(f"config: {str(exc).splitlines()[0]}") from None
+        try:
+            self.navigator = self._navigator(method, ins_model)
+        except BaseException:
+            self._reserve(previous[0])  # the old navigator keeps its reservation
+            raise
+        self._current = (method, ins_model)
+        self._t0 = None
         return method
 
 
@@ -309,10 +486,14 @@ def _ins_model(ins, dvl):
     return InsErrorModel.from_specs(ins_spec, dvl_spec)
 
 
-async def _lines(reader: asyncio.StreamReader):
-    """Yield request lines; an oversized line yields ``None`` once (its bytes dropped)."""
+async def _lines(reader: asyncio.StreamReader, max_bytes: int = MAX_LINE_BYTES):
+    """Yield request lines; a line longer than ``max_bytes`` yields ``None`` and ends.
+
+    No more than ``max_bytes`` plus one read are ever held for the connection: a line
+    (with or without its newline) beyond the limit is refused, and the caller closes the
+    connection rather than read on.
+    """
     buffer = bytearray()
-    dropping = False
     while True:
         chunk = await reader.read(READ_CHUNK)
         if not chunk:
@@ -320,18 +501,14 @@ async def _lines(reader: asyncio.StreamReader):
         buffer += chunk
         while True:
             cut = buffer.find(b"\n")
+            if (cut < 0 and len(buffer) > max_bytes) or cut > max_bytes:
+                yield None
+                return
             if cut < 0:
-                if len(buffer) > MAX_LINE_BYTES:
-                    dropping = True
-                    buffer.clear()
                 break
             line = bytes(buffer[:cut])
             del buffer[: cut + 1]
-            if dropping or len(line) > MAX_LINE_BYTES:
-                dropping = False
-                yield None
-            else:
-                yield line
+            yield line
 
 
 def _encode(reply: dict) -> bytes:
@@ -360,75 +537,293 @@ def _require_finite(value) -> None:
             _require_finite(item)
 
 
+def _error_line(message: str) -> bytes:
+    return orjson.dumps({"ok": False, "error": message}, option=orjson.OPT_APPEND_NEWLINE)
+
+
 OVERSIZED = {"ok": False, "error": f"request line longer than {MAX_LINE_BYTES} bytes"}
 
 
 class NavigatorServer:
-    """The asyncio TCP server: :meth:`start`, then :meth:`stop` (or ``serve_forever``)."""
+    """The asyncio TCP server: :meth:`start`, then :meth:`stop` (or ``serve_forever``).
 
-    def __init__(self, grid, method, settings=None, seed=0, map_error=None, ins_model=None) -> None:
+    Every connection's requests are handled one at a time, in order, on
+    :class:`~geofix.server_limits.UpdateWorkers` threads, never on the event loop: a
+    connection whose update takes seconds holds one worker, and the others keep
+    answering. ``limits`` (:class:`~geofix.server_limits.ServerLimits`) bounds the
+    connections, each connection's buffered bytes and filter size, the memory of all of
+    them together (:class:`~geofix.server_limits.MemoryLedger`) and the time of one
+    update. Trouble that is not a client's request (a refused connection, the
+    file-descriptor limit) is logged as one line per cause, at most once per
+    ``limits.log_interval_s`` (:class:`~geofix.server_limits.RateLog`).
+    """
+
+    def __init__(
+        self,
+        grid,
+        method,
+        settings=None,
+        seed=0,
+        map_error=None,
+        ins_model=None,
+        limits: ServerLimits | None = None,
+        log=None,
+    ) -> None:
         self.grid, self.method, self.settings = grid, method, settings
         self.seed, self.map_error, self.ins_model = seed, map_error, ins_model
-        # refuse a bad method or setting (or a missing INS model) now
-        Session(grid, method, settings, seed, map_error, ins_model)
+        self.limits = limits or ServerLimits()
+        self.log = log or RateLog(self.limits.log_interval_s)
+        threads = self.limits.workers + self.limits.heavy_workers
+        self.ledger = MemoryLedger(float(self.limits.budget()), threads)
+        self.max_connections = self._connection_cap()
+        # refuse a bad method or setting (or a missing INS model, or a size over the
+        # limits) now; its reservation is given back at once
+        self._session().close()
         self._server: asyncio.base_events.Server | None = None
+        self._workers: UpdateWorkers | None = None
+        self._heavy: UpdateWorkers | None = None
+        self._tasks: set[asyncio.Task] = set()
         self.connections = 0
 
+    def _connection_cap(self) -> int:
+        """``max_connections``, lowered to what the file-descriptor limit allows."""
+        headroom = descriptor_headroom()
+        cap = self.limits.max_connections
+        if headroom is not None and headroom < cap:
+            self.log(
+                "max_connections lowered by the file-descriptor limit (ulimit -n)",
+                f"{cap} -> {headroom}",
+            )
+            cap = headroom
+        return cap
+
+    @property
+    def active(self) -> int:
+        """Connections open now."""
+        return len(self._tasks)
+
+    def _session(self) -> Session:
+        return Session(
+            self.grid,
+            self.method,
+            self.settings,
+            self.seed,
+            self.map_error,
+            self.ins_model,
+            self.limits,
+            self.ledger,
+        )
+
     async def start(self, host: str = "127.0.0.1", port: int = 0) -> int:
-        """Listen on ``host:port`` (0: any free port); return the port."""
-        self._server = await asyncio.start_server(self._serve, host, port)
+        """Listen on ``host:port`` (0: any free port); return the port.
+
+        Raises
+        ------
+        ConfigError
+            An empty host, a port outside 0-65535, or an address that cannot be bound
+            (in use, not this machine's).
+        """
+        check_address(host, port)
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(self._loop_error)
+        self._workers = UpdateWorkers(self.limits.workers)
+        self._heavy = UpdateWorkers(
+            self.limits.heavy_workers, "geofix-heavy-update", self.limits.heavy_nice
+        )
+        try:
+            self._server = await asyncio.start_server(self._serve, host, port)
+        except OSError as exc:
+            self._workers.shutdown()
+            self._heavy.shutdown()
+            raise ConfigError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
         return int(self._server.sockets[0].getsockname()[1])
 
     async def stop(self) -> None:
-        """Stop listening and close the server."""
+        """Stop listening, close every connection and stop the update threads."""
         if self._server is not None:
             self._server.close()
-            await self._server.wait_closed()
+        for task in list(self._tasks):
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        if self._server is not None:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(self._server.wait_closed(), 5.0)
+        for workers in (self._workers, self._heavy):
+            if workers is not None:
+                workers.shutdown()
+
+    def _loop_error(self, loop, context: dict) -> None:
+        """The event loop's errors (a failed ``accept`` at the descriptor limit): one line."""
+        exc = context.get("exception")
+        cause = str(context.get("message") or "event loop error").split(";")[0]
+        detail = describe_os_error(exc) if exc is not None else ""
+        self.log(cause, detail)
 
     async def _serve(self, reader, writer) -> None:
-        self.connections += 1
-        session = Session(
-            self.grid, self.method, self.settings, self.seed, self.map_error, self.ins_model
-        )
+        task = asyncio.current_task()
+        if task is not None:
+            self._tasks.add(task)
         try:
-            async for line in _lines(reader):
-                reply = OVERSIZED if line is None else session.handle(line)
-                writer.write(_encode(reply))
-                await writer.drain()
+            await self._connection(reader, writer)
+        except asyncio.CancelledError:
+            pass  # the server is stopping: the connection just closes
+        except Exception as exc:  # never a traceback: one line per cause
+            self.log("connection ended by an error", describe_os_error(exc))
+        finally:
+            self._tasks.discard(task)  # type: ignore[arg-type]
+            writer.close()
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(writer.wait_closed(), 1.0)
+
+    async def _connection(self, reader, writer) -> None:
+        if self.active > self.max_connections:
+            self.log("connection refused", f"max_connections = {self.max_connections}")
+            writer.write(_error_line(f"server busy: max_connections = {self.max_connections}"))
+            return
+        try:
+            session = self._session()
+        except GeofixError as exc:
+            self.log("connection refused", str(exc).splitlines()[0])
+            writer.write(_error_line(f"server busy: {str(exc).splitlines()[0]}"))
+            return
+        self.connections += 1
+        try:
+            await self._requests(reader, writer, session)
         except (ConnectionError, asyncio.IncompleteReadError):
             pass  # the client went away: only this connection ends
         finally:
-            writer.close()
-            with contextlib.suppress(Exception):
-                await writer.wait_closed()
+            session.close()
+
+    async def _requests(self, reader, writer, session: Session) -> None:
+        async for line in _lines(reader, self.limits.max_line_bytes):
+            if line is None:
+                limit = self.limits.max_line_bytes
+                writer.write(_error_line(f"request line longer than {limit} bytes; closing"))
+                await _linger(reader, writer)
+                return
+            reply, session = await self._update(session, line)
+            writer.write(_encode(reply))
+            await writer.drain()
+
+    async def _update(self, session: Session, line: bytes) -> tuple[dict, Session]:
+        """The reply to ``line`` from a worker thread, within the update time budget.
+
+        An update still running after ``update_timeout_s`` gets an error reply; it is
+        left to finish on its own (its memory stays reserved until then) and the
+        connection goes on with a new navigator.
+        """
+        lane = self._heavy if session.points > self.limits.heavy_points else self._workers
+        assert lane is not None
+        future = lane.submit(session.handle, line)
+        try:
+            reply = await asyncio.wait_for(
+                asyncio.shield(asyncio.wrap_future(future)), self.limits.update_timeout_s
+            )
+            return reply, session
+        except TimeoutError:
+            future.add_done_callback(lambda _: session.close())
+        budget = self.limits.update_timeout_s
+        message = f"update took longer than update_timeout_s = {budget:g} s"
+        try:
+            fresh = self._session()
+        except GeofixError as exc:
+            raise ConnectionError(str(exc)) from None  # closes this connection
+        return {"ok": False, "error": f"{message}; the navigator starts again (send init)"}, fresh
+
+
+async def _linger(reader, writer, seconds: float = 1.0) -> None:
+    """Send what is written, then read and drop input for up to ``seconds``.
+
+    Closing a socket with unread input resets it, and the client may lose the reply
+    still on its way; reading on a little first lets the last reply arrive.
+    """
+    await writer.drain()
+    with contextlib.suppress(OSError, RuntimeError):
+        if writer.can_write_eof():
+            writer.write_eof()
+    deadline = asyncio.get_running_loop().time() + seconds
+    with contextlib.suppress(TimeoutError, OSError):
+        while (left := deadline - asyncio.get_running_loop().time()) > 0:
+            if not await asyncio.wait_for(reader.read(READ_CHUNK), left):
+                return
+
+
+def check_address(host, port) -> None:
+    """Refuse a host that would silently mean every interface, or a port out of range.
+
+    Raises
+    ------
+    ConfigError
+        ``host`` empty (give ``0.0.0.0`` or ``::`` to listen on every interface), or
+        ``port`` not an integer in 0-65535.
+    """
+    if not isinstance(host, str) or not host.strip():
+        raise ConfigError(
+            f"host {host!r} would listen on every interface; give 0.0.0.0 (or ::) to mean "
+            "that, or an address such as 127.0.0.1"
+        )
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+        raise ConfigError(f"port {port!r} is not a TCP port (0 to 65535; 0: any free port)")
 
 
 def serve(
-    grid, method, host="127.0.0.1", port=7010, settings=None, seed=0, map_error=None, ins_model=None
-):
-    """Run the server until interrupted (``geofix serve``); prints nothing itself.
+    grid,
+    method,
+    host="127.0.0.1",
+    port=7010,
+    settings=None,
+    seed=0,
+    map_error=None,
+    ins_model=None,
+    limits: ServerLimits | None = None,
+    announce: Callable[[str, int], None] | None = None,
+) -> None:
+    """Run the server until Ctrl-C or SIGTERM (``geofix serve``); prints nothing itself.
 
-    A bad method or setting (or ``mpf`` without ``ins_model``) raises before listening.
+    A bad method or setting (or ``mpf`` without ``ins_model``), a bad address or one
+    that cannot be bound raises before ``announce(host, port)`` is called with the port
+    actually bound (a port of 0 picks a free one). A Ctrl-C or SIGTERM closes every
+    connection and returns normally.
     """
-    server = NavigatorServer(grid, method, settings, seed, map_error, ins_model)
+    check_address(host, port)
+    server = NavigatorServer(grid, method, settings, seed, map_error, ins_model, limits)
 
     async def main():
-        await server.start(host, port)
-        await asyncio.Event().wait()
+        bound = await server.start(host, port)
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+                loop.add_signal_handler(sig, stop.set)
+        if announce is not None:
+            announce(host, bound)
+        try:
+            await stop.wait()
+        finally:
+            await server.stop()
 
-    asyncio.run(main())
+    with contextlib.suppress(KeyboardInterrupt):
+        asyncio.run(main())
 
 
 @contextlib.contextmanager
 def serve_in_thread(
-    grid, method, host="127.0.0.1", settings=None, seed=0, map_error=None, ins_model=None
+    grid,
+    method,
+    host="127.0.0.1",
+    settings=None,
+    seed=0,
+    map_error=None,
+    ins_model=None,
+    limits: ServerLimits | None = None,
+    log=None,
 ):
     """Run a server on a free port in a background thread; yields ``(host, port)``.
 
     The server and its thread stop when the ``with`` block ends.
     """
     loop = asyncio.new_event_loop()
-    server = NavigatorServer(grid, method, settings, seed, map_error, ins_model)
+    server = NavigatorServer(grid, method, settings, seed, map_error, ins_model, limits, log)
     port = loop.run_until_complete(server.start(host, 0))
     thread = threading.Thread(target=loop.run_forever, daemon=True)
     thread.start()
