@@ -113,3 +113,18 @@ def test_gridding_is_checked_against_the_budget_not_a_cell_cap(monkeypatch):
     assert max(grid_soundings(x, y, value, 5.0).grid.shape) == 201
     monkeypatch.setenv("GEOFIX_MEMORY_BUDGET", "2GiB")
     assert grid_soundings(x, y, value, 1.0).grid.values.size > 990_000
+
+
+def test_a_sitan_bank_linearisation_beyond_the_budget_is_refused_before_it_runs(
+    terrain, monkeypatch
+):
+    navigate(terrain, "sitan-bank:side=3", 1)  # imports and caches
+    monkeypatch.setenv("GEOFIX_MEMORY_BUDGET", "32MiB")
+
+    def refused():
+        with pytest.raises(MemoryBudgetError, match=r"terrain linearisation of \d+ filters"):
+            navigate(terrain, "sitan-bank:side=25")
+
+    assert traced_peak(refused) < 32 * 2**20
+    monkeypatch.setenv("GEOFIX_MEMORY_BUDGET", "4GiB")
+    navigate(terrain, "sitan-bank:side=9")  # a smaller bank fits

@@ -53,6 +53,7 @@ from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.maps.grid import Grid
 from geofix.maps.terrain import plane_stencil
 from geofix.measurement import linearise
+from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import MatchProblem
 
 STATE_SIZE = 5
@@ -171,6 +172,11 @@ def position_sigma_max(cov: np.ndarray) -> np.ndarray:
     return np.sqrt(np.maximum(lam, 0.0))
 
 
+PATCH_COPIES = 5
+"""Float copies per filter, beam and plane-fit point of one linearisation (measured with
+tracemalloc: about 4, the lattice's two coordinates, its map reads and their weights)."""
+
+
 def patch_half_width(cov: np.ndarray, patch_sigmas: float, cell_m: float) -> np.ndarray:
     """Plane-fit half-widths, metres, ``(M,)``.
 
@@ -216,6 +222,11 @@ def linear_model(
     lookups = 0
     for hw in np.unique(widths):
         idx = np.flatnonzero(widths == hw)
+        points = plane_stencil(grid, float(hw)).shape[0]
+        check_allocation(
+            cells_bytes(idx.size, b, points, copies=PATCH_COPIES),
+            f"terrain linearisation of {idx.size} filters x {b} beams x {points} map points",
+        )
         lin = linearise(grid, positions[idx], obs.heading, obs.offsets, float(hw))
         predicted[idx], slopes[idx], fit_var[idx] = lin.predicted, lin.slopes, lin.fit_var
         lookups += idx.size * b * (plane_stencil(grid, float(hw)).shape[0] + 1)
