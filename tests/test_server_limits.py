@@ -337,20 +337,32 @@ def geofix_serve(*args, preexec_fn=None) -> tuple[subprocess.Popen, int]:
     while line and "serving" not in line:
         line = proc.stderr.readline()
     found = re.search(r"on 127\.0\.0\.1:(\d+) \(Ctrl-C stops\)", line)
+    if not found:
+        end(proc)
     assert found, line
     return proc, int(found.group(1))
+
+
+def end(proc: subprocess.Popen) -> None:
+    """Kill a server a failed test left running."""
+    if proc.poll() is None:
+        proc.kill()
+        proc.communicate(timeout=30)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_ctrl_c_and_sigterm_stop_the_server_cleanly_with_clients_connected(sig):
     proc, port = geofix_serve()
-    assert port > 0  # the port actually bound, not 0
-    clients = [Client("127.0.0.1", port) for _ in range(3)]
-    assert "no init yet" in clients[0].estimate(check=False)["error"]
-    proc.send_signal(sig)
-    out, err = proc.communicate(timeout=60)
-    for c in clients:
-        c.close()
+    try:
+        assert port > 0  # the port actually bound, not 0
+        clients = [Client("127.0.0.1", port) for _ in range(3)]
+        assert "no init yet" in clients[0].estimate(check=False)["error"]
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=60)
+        for c in clients:
+            c.close()
+    finally:
+        end(proc)
     assert proc.returncode == 0
     assert "Traceback" not in err and "Error" not in err and out == ""
 
@@ -362,15 +374,18 @@ def test_at_the_descriptor_limit_connections_are_refused_in_a_few_log_lines():
         resource.setrlimit(resource.RLIMIT_NOFILE, (48, 48))
 
     proc, port = geofix_serve(preexec_fn=low_limit)
-    sockets = [socket.create_connection(("127.0.0.1", port), timeout=10) for _ in range(100)]
-    answered = 0
-    for s in sockets[:60]:
-        s.sendall(b'{"type": "estimate"}\n')
-        answered += s.recv(1000).startswith(b'{"ok":false')
-    for s in sockets:
-        s.close()
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=60)
+    try:
+        sockets = [socket.create_connection(("127.0.0.1", port), timeout=10) for _ in range(100)]
+        answered = 0
+        for s in sockets[:60]:
+            s.sendall(b'{"type": "estimate"}\n')
+            answered += s.recv(1000).startswith(b'{"ok":false')
+        for s in sockets:
+            s.close()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        end(proc)
     assert proc.returncode == 0 and answered == 60
     assert "Traceback" not in err and len(err.splitlines()) <= 6, err
     assert "max_connections" in err
