@@ -165,6 +165,7 @@ def hypotheses_log_likelihood(
     measured,
     noise_var,
     bias_var: float = 0.0,
+    shift=None,
 ) -> np.ndarray:
     """Gaussian log-likelihood of the measured beams from every hypothesised position.
 
@@ -192,6 +193,10 @@ def hypotheses_log_likelihood(
         (:func:`common_bias_log_likelihood`); 0: none. With an offset, or a map read
         other than bilinear (``grid.interpolation``), the numbers come from the
         prediction array instead of the fused pass.
+    shift : numpy.ndarray, optional
+        ``(...)`` each hypothesis's own offset added to its predictions, map units (a
+        per-hypothesis offset state, :mod:`geofix.filters.hypothesis_offset`; through
+        the prediction array).
 
     Returns
     -------
@@ -200,8 +205,10 @@ def hypotheses_log_likelihood(
         :data:`OFF_MAP_LOG_LIKELIHOOD` each).
     """
     positions = np.asarray(positions, dtype=float)
-    if bias_var > 0 or grid.interpolation != "bilinear":
+    if bias_var > 0 or grid.interpolation != "bilinear" or shift is not None:
         predicted = predict_measurements(grid, positions, heading, offsets)
+        if shift is not None:
+            predicted = predicted + np.asarray(shift, dtype=float)[..., None]
         return log_likelihood(predicted, measured, noise_var, bias_var)
     bcol, brow, y, var = _measured_beams(grid, heading, offsets, measured, noise_var)
     px, py = _flat_xy(positions)
@@ -222,6 +229,7 @@ def local_field_log_likelihood(
     noise_var,
     sides,
     bias_var: float = 0.0,
+    shift=None,
 ) -> np.ndarray:
     r"""Log-likelihood of every hypothesis with the field's variation within its own share.
 
@@ -266,6 +274,9 @@ def local_field_log_likelihood(
         column ``sqrt(12 bias_var) 1`` of ``D``); with it, or a map read other than
         bilinear, the numbers come from the prediction arrays
         (:func:`local_field_reference`).
+    shift : numpy.ndarray, optional
+        ``(...)`` each hypothesis's own offset added to its predictions, map units
+        (through the prediction arrays too).
 
     Returns
     -------
@@ -275,9 +286,9 @@ def local_field_log_likelihood(
     """
     positions = np.asarray(positions, dtype=float)
     sides = np.asarray(sides, dtype=float).reshape(2, 2)
-    if bias_var > 0 or grid.interpolation != "bilinear":
+    if bias_var > 0 or grid.interpolation != "bilinear" or shift is not None:
         return local_field_reference(
-            grid, positions, heading, offsets, measured, noise_var, sides, bias_var
+            grid, positions, heading, offsets, measured, noise_var, sides, bias_var, shift
         )
     bcol, brow, y, var = _measured_beams(grid, heading, offsets, measured, noise_var)
     px, py = _flat_xy(positions)
@@ -330,7 +341,15 @@ def node_grid_local_log_likelihood(
 
 
 def local_field_reference(
-    grid: Grid, positions, heading: float, offsets, measured, noise_var, sides, bias_var=0.0
+    grid: Grid,
+    positions,
+    heading: float,
+    offsets,
+    measured,
+    noise_var,
+    sides,
+    bias_var=0.0,
+    shift=None,
 ) -> np.ndarray:
     """:func:`local_field_log_likelihood` from the prediction arrays (any map read).
 
@@ -354,6 +373,8 @@ def local_field_reference(
         columns.append(np.full(f0.shape, np.sqrt(bias_var)))
     z = np.stack(columns, axis=-1)  # (m, b, c)
     residual = measured - f0
+    if shift is not None:
+        residual = residual - np.asarray(shift, dtype=float).reshape(-1, 1)
     valid = np.isfinite(residual)
     off_map = (~valid & np.isfinite(measured)).sum(axis=-1)
     inv_var = np.broadcast_to(1.0 / np.asarray(noise_var, dtype=float), measured.shape)

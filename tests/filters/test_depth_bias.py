@@ -58,12 +58,12 @@ def test_the_posterior_of_the_offset_is_the_weighted_mean_shrunk():
     assert mean == pytest.approx(10.0 / 3.0) and var == pytest.approx(1.0 / 3.0)
 
 
-def run(grid, rng, offset, settings, n=30, heading=np.pi / 4):
+def run(grid, rng, offset, settings, n=30, heading=np.pi / 4, method="pmf"):
     t = np.arange(n) * 1.0
     truth = np.array([400.0, 300.0]) + t[:, None] * 8.0 * np.array(
         [np.sin(heading), np.cos(heading)]
     )
-    nav = Navigator(grid, "pmf", settings, seed=4)
+    nav = Navigator(grid, method, settings, seed=4)
     nav.init(t[0], truth[0] + (30.0, -20.0), 40.0, heading)
     ests = []
     for k in range(n):
@@ -83,8 +83,9 @@ def test_a_constant_offset_is_recovered_and_reported(synthetic_grid, rng):
     assert 0 < last.depth_bias_std < 0.3
     assert np.hypot(*(last.position - truth[-1])) < 5.0
     assert last.to_dict()["depth_bias"] == pytest.approx(last.depth_bias)
-    # off: the offset is not reported, and the NIS window loses the navigator
-    _, off = run(synthetic_grid, rng, 5.0, {"noise_std": 0.3})
+    # off (the exact map model): the offset is not reported, and the NIS window loses
+    # the navigator
+    _, off = run(synthetic_grid, rng, 5.0, {"noise_std": 0.3}, method="pmf:map_model=exact")
     assert np.isnan(off[-1].depth_bias) and off[-1].to_dict()["depth_bias"] is None
     assert off[-1].reinits > 0 and last.reinits == 0
 
@@ -115,13 +116,14 @@ def test_a_replay_with_a_5_m_offset_converges_with_the_bias_state(ex1811):
     beams[..., 2] += 5.0
     shifted = replace(mission, beams=beams)
     rows, biases = {}, {}
-    for std in (0.0, 10.0):
+    # off: the exact map model, no offset state
+    for std, method in ((0.0, "pmf:map_model=exact"), (10.0, "pmf")):
         # 4 m per beam (as the navigator benchmark): this map has no z_std layer, and at the
         # default 2 m the NIS (about 3) is beyond what ``converged`` accepts
         settings = {"depth_bias_std": std, "noise_std": 4.0}
-        result = replay(shifted, grid, ["pmf"], initial_error_m=500, seed=1, settings=settings)
-        rows[std] = result.summary["methods"]["pmf"]
-        biases[std] = np.array([e.depth_bias for e in result.estimates["pmf"]])
+        result = replay(shifted, grid, [method], initial_error_m=500, seed=1, settings=settings)
+        rows[std] = result.summary["methods"][method]
+        biases[std] = np.array([e.depth_bias for e in result.estimates[method]])
     on, off = rows[10.0], rows[0.0]
     assert on["converged_at_s"] is not None and on["max_error_m"] < 100.0
     assert on["mean_error_m"] < 0.8 * off["mean_error_m"]  # off: the offset degrades the fix

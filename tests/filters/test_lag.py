@@ -61,7 +61,9 @@ def _rms_and_spread(errors):
     return rms, float(sq.std(ddof=1) / np.sqrt(sq.size) / (2.0 * rms))
 
 
-@pytest.mark.parametrize("spec", ["pmf", "mpf:particles=2000"])
+# the exact map model: an adaptive one absorbs much of an uncompensated lag into its
+# noise scale and offset, so the lag's harm is measured where nothing else hides it
+@pytest.mark.parametrize("spec", ["pmf:map_model=exact", "mpf:particles=2000,map_model=exact"])
 def test_compensated_filters_end_as_on_the_unlagged_mission(missions, spec):
     grid, pairs = missions
     lagged = [a for a, _ in pairs]

@@ -136,7 +136,7 @@ def _kalman(problem, beam_var):
 
 def test_pmf_weighs_every_beam_by_its_own_noise():
     problem = _problem(np.random.default_rng(3))
-    fix = run_filter(Pmf(discretisation_noise=False), problem, None)
+    fix = run_filter(Pmf(discretisation_noise=False, map_model="exact"), problem, None)
     means, covs = _kalman(problem, BEAM_STD**2)
     _, wrong_covs = _kalman(problem, np.full(3, 0.25))  # nadir noise everywhere
     for k in range(problem.n):

@@ -156,7 +156,7 @@ def test_the_imperfect_model_keeps_its_covariance_on_an_offset_map(tmp_path):
     from geofix.sim.simulate import simulate_trial
 
     scen, grid = _offset_mission(tmp_path, 3.0)
-    nees = {"pf:particles=1500": [], "pf:particles=1500,map_model=imperfect": []}
+    nees = {"pf:particles=1500,map_model=exact": [], "pf:particles=1500,map_model=imperfect": []}
     errors = {spec: [] for spec in nees}
     for index in range(scen.trials):
         trial = simulate_trial(scen, grid, index)
@@ -170,3 +170,36 @@ def test_the_imperfect_model_keeps_its_covariance_on_an_offset_map(tmp_path):
     # 6 trials of a chi-square(2): the median is below 5 with probability 0.98
     assert np.median(nees[imperfect]) < 5.0
     assert max(errors[imperfect]) < 3 * 10.0 < np.median(errors[exact])
+
+
+def _share_after(excess_std: float, layer_std: float, rng, pings: int = 200) -> float:
+    """The representation share after ``pings`` 7-beam pings read at a known position."""
+    from geofix.filters.nuisance import RepresentationShare
+
+    grid = _ramp()
+    share = RepresentationShare.prior(0.98)
+    declared = np.full(7, 0.25)
+    extra = np.full(7, layer_std**2)
+    for _ in range(pings):
+        obs = _ping(grid, (300.0, 300.0), 0.0, rng, 0.5)
+        obs = Observation(
+            obs.values + rng.normal(0.0, excess_std, 7) if excess_std else obs.values,
+            obs.indicated,
+            obs.heading,
+            obs.offsets,
+            declared + share.value * extra,
+            0,
+        )
+        reads = read_at_points(grid, np.full(2, 300.0), np.eye(2) * 1e-6, obs)
+        share = share.updated(reads, declared, extra, 0.0)
+    return share.value
+
+
+def test_the_representation_share_follows_what_the_innovations_support(rng):
+    # a map that is the seabed: the layer (1 m) is not in the residuals, the share leaves it
+    assert _share_after(0.0, 1.0, rng) < 0.2
+    # residuals with the layer's 1 m in them: the share stays near one (about 50 pings of
+    # 7 beams in its memory: a few tenths of spread)
+    assert 0.6 < _share_after(1.0, 1.0, rng) < 1.5
+    # twice the layer's error in the residuals: a share of about four
+    assert 2.5 < _share_after(2.0, 1.0, rng) <= 4.0

@@ -69,7 +69,10 @@ def test_posterior_equals_kalman_on_a_plane(discretisation_noise, tol):
     # tol: whitened error of the mean and of the covariance; with the node-field variance
     # the likelihood is slightly flattened (a 1 % wider posterior on this grid)
     problem = _plane_problem(np.random.default_rng(3))
-    fix = run_filter(Pmf(discretisation_noise=discretisation_noise), problem, None)
+    # the exact map model: on a plane a common offset is a shift along the slope
+    fix = run_filter(
+        Pmf(discretisation_noise=discretisation_noise, map_model="exact"), problem, None
+    )
     means, covs = _kalman(problem)
     covs_pmf = fix.diagnostics["covariances"]
     # along the gradient the posterior is ~6 m wide, across it ~30 m: both resolved
@@ -223,9 +226,11 @@ def test_converges_from_a_prior_much_wider_than_the_cell(seed):
     cell = problem.grid.cell_size
     # a fixed 61-node grid that follows the moments alone: 100 m (10 cells) between the
     # prior's nodes, and it locks on a wrong place with confidence
-    old = Pmf(max_points=61, support_nats=0.0).match(problem, None)
+    old = Pmf(max_points=61, support_nats=0.0, map_model="exact").match(problem, None)
     assert np.hypot(*(old.track[-1] - truth[-1])) > 20 * cell and not old.ambiguous
-    for pmf in (Pmf(), Pmf(max_points=61), Pmf(support_nats=0.0)):  # both remedies, each
+    # both remedies, each, on the sharp likelihood of the exact map model; and the default
+    remedies = (Pmf(max_points=61, map_model="exact"), Pmf(support_nats=0.0, map_model="exact"))
+    for pmf in (Pmf(), *remedies):
         fix = pmf.match(problem, None)
         assert np.hypot(*(fix.track[-1] - truth[-1])) < 0.5 * cell
         assert not fix.ambiguous

@@ -72,7 +72,17 @@ class Observation:
         Sample index.
     bias_var : float
         Variance of an unknown offset common to every beam (tide, sound speed, map
-        datum), map units squared, the likelihood is marginalised over; 0: none.
+        datum), map units squared, the likelihood is marginalised over; 0: none. A
+        filter that carries the offset per hypothesis
+        (:mod:`geofix.filters.hypothesis_offset`) takes it as the offset's prior variance
+        at its first ping.
+    bias_walk : float
+        Variance the offset gains per second, map units squared per second (a filter
+        that carries the offset per hypothesis).
+    bias_per_hypothesis : bool
+        The filter is to carry the offset per hypothesis from this ping on (``bias_var``
+        its prior variance); False: ``bias_var`` is marginalised around the values as
+        given.
     """
 
     values: np.ndarray
@@ -82,6 +92,8 @@ class Observation:
     noise_var: np.ndarray | float
     index: int
     bias_var: float = 0.0
+    bias_walk: float = 0.0
+    bias_per_hypothesis: bool = False
 
 
 class RecursiveFilter:

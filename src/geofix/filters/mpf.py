@@ -99,6 +99,7 @@ from threadpoolctl import threadpool_limits
 
 from geofix.errors import ConfigError, MatchError
 from geofix.filters.base import Motion, Observation, RecursiveFilter
+from geofix.filters.hypothesis_offset import HypothesisOffset
 from geofix.filters.nuisance import check_map_model
 from geofix.filters.pf import (
     PfState,
@@ -151,6 +152,8 @@ class MpfState:
         Map cell and typical particle spacing, metres.
     evaluations, resamples : int
         Likelihoods evaluated and resampling steps so far.
+    offset : HypothesisOffset or None
+        Each particle's common offset (``map_model=imperfect``), from the first ping on.
     """
 
     dp: np.ndarray
@@ -165,6 +168,7 @@ class MpfState:
     spacing: float = 0.0
     evaluations: int = 0
     resamples: int = 0
+    offset: HypothesisOffset | None = None
 
     @property
     def positions(self) -> np.ndarray:
@@ -248,7 +252,7 @@ class Mpf(RecursiveFilter):
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
     prior: str = "moments"
-    map_model: str = "exact"
+    map_model: str = "imperfect"
 
     def __post_init__(self) -> None:
         if self.prior not in PRIORS:
@@ -333,6 +337,8 @@ class Mpf(RecursiveFilter):
         """
         if effective_sample_size(state.weights) < self.resample_threshold * state.dp.shape[0]:
             state = self._resample(state, rng)
+        if state.offset is not None:
+            state = replace(state, offset=state.offset.predicted(motion.dt))
         k = state.step
         model, f, q = step_matrices(
             state.model, k, motion.displacement, motion.dt, motion.process_var
@@ -371,15 +377,32 @@ class Mpf(RecursiveFilter):
             state = replace(state, log_weight=log_normalised(log_weight))
         if not np.isfinite(obs.values).any():
             return replace(state, log_weight=log_normalised(log_weight))
+        if self.carries_offset and state.offset is None:
+            state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
 
         def likelihood(current: MpfState) -> np.ndarray:
             view = PfState(
-                current.positions, current.log_weight, current.cell, spacing=current.spacing
+                current.positions,
+                current.log_weight,
+                current.cell,
+                spacing=current.spacing,
+                offset=current.offset,
             )
             return particle_log_likelihood(self, grid, view, obs, rng)
 
         state, reads = staged_update(self, state, likelihood, self._spread_copies, rng)
+        if state.offset is not None:
+            state = replace(state, offset=state.offset.updated(grid, state.positions, obs))
         return replace(state, evaluations=state.evaluations + reads)
+
+    @property
+    def carries_offset(self) -> bool:
+        """Each particle carries its own common offset (``map_model=imperfect``)."""
+        return self.map_model == "imperfect"
+
+    def offset_moments(self, state: MpfState) -> tuple[float, float] | None:
+        """The posterior offset's mean and variance (map units), or None without one."""
+        return None if state.offset is None else state.offset.moments(state.weights)
 
     def _spread_copies(self, state: MpfState, rng) -> MpfState:
         """Resample (same count) and spread each copy over its original's square share."""
@@ -395,6 +418,7 @@ class Mpf(RecursiveFilter):
             linear=moved[:, _L],
             log_weight=np.full(count, -np.log(count)),
             resamples=state.resamples + 1,
+            offset=None if state.offset is None else state.offset.take(index),
         )
 
     def estimate(self, state: MpfState) -> tuple[np.ndarray, np.ndarray]:
@@ -501,6 +525,7 @@ class Mpf(RecursiveFilter):
             log_weight=np.full(count, -np.log(count)),
             spacing=spacing,
             resamples=state.resamples + 1,
+            offset=None if state.offset is None else state.offset.take(index),
         )
 
 

@@ -135,12 +135,15 @@ class PointReads:
         ``(k,)`` the used beams' readings (relative to the offset's mean), map units.
     noise_var : numpy.ndarray
         ``(k,)`` the used beams' declared variance, map units squared.
+    used : numpy.ndarray or None
+        ``(b,)`` which of the ping's beams were used.
     """
 
     predicted: np.ndarray
     weights: np.ndarray
     values: np.ndarray
     noise_var: np.ndarray
+    used: np.ndarray | None = None
 
     @property
     def beams(self) -> int:
@@ -171,7 +174,7 @@ def read_at_points(grid: Grid, mean, cov, obs: Observation) -> PointReads | None
     if not use.any():
         return None
     noise = np.broadcast_to(np.asarray(obs.noise_var, dtype=float), obs.values.shape)
-    return PointReads(predicted[:, use], weights, obs.values[use], noise[use])
+    return PointReads(predicted[:, use], weights, obs.values[use], noise[use], use)
 
 
 @dataclass(frozen=True)
@@ -342,14 +345,10 @@ class ResidualScale:
             innovations less what the position's and the offset's spread explain, in
             units of the declared variance (``n`` on average when it is right).
         """
-        if reads is None or not np.isfinite(reads.predicted).all():
+        excess = None if reads is None else _innovations(reads, bias_var)
+        if reads is None or excess is None:
             return self
-        yhat = reads.weights @ reads.predicted
-        spread = reads.weights @ (reads.predicted - yhat) ** 2
-        residual = reads.values - yhat
-        if not np.isfinite(residual).all():
-            return self
-        total = float(np.sum((residual**2 - spread - bias_var) / reads.noise_var))
+        total = float(np.sum(excess / reads.noise_var))
         if not np.isfinite(total):
             return self
         lam = self.forgetting
@@ -358,6 +357,108 @@ class ResidualScale:
             alpha=lam * self.alpha + 0.5 * reads.beams,
             beta=lam * self.beta + 0.5 * max(total, 0.0),
         )
+
+
+def _innovations(reads: PointReads, bias_var: float) -> np.ndarray | None:
+    """Each used beam's squared innovation less what is explained, map units squared.
+
+    ``r_b^2 - S_b - P``: less the position's spread (``S_b`` over the unscented points)
+    and the common offset's variance ``P``. A ping of three beams or more is taken
+    relative to its own mean first (predictions and readings alike, the squares times
+    ``k / (k - 1)``): a common offset then drops out whatever it is, where ``P`` is only
+    its prior spread (an offset not yet learnt, ``P`` large, would otherwise explain away
+    every excess). None when not all are finite.
+    """
+    predicted, values, bias = reads.predicted, reads.values, bias_var
+    factor = 1.0
+    if values.size >= 3:
+        predicted = predicted - predicted.mean(axis=1, keepdims=True)
+        values = values - values.mean()
+        factor, bias = values.size / (values.size - 1.0), 0.0
+    if not np.isfinite(predicted).all():
+        return None
+    yhat = reads.weights @ predicted
+    spread = reads.weights @ (predicted - yhat) ** 2
+    excess = factor * (values - yhat) ** 2 - spread - bias
+    return excess if np.isfinite(excess).all() else None
+
+
+@dataclass(frozen=True)
+class RepresentationShare:
+    """The share ``c`` of the representation-error layer the innovations support.
+
+    The representation layer (:func:`representation_std`) says how much a map read
+    between its nodes may miss where the seabed is rougher than the map; a map that *is*
+    the seabed misses nothing, a map of block means about what the layer says. Each beam's
+    variance is ``R_b + c Q_b`` (``R_b`` the declared variance, ``Q_b`` the layer's
+    variance at the beam's footprint), and ``c`` is the weighted least-squares fit of
+    the innovations' excess ``e_b = r_b^2 - S_b - P - R_b`` to ``c Q_b`` (weights
+    ``1 / V_b^2``, ``V_b = R_b + c Q_b``), with exponential forgetting and a prior of
+    ``c = 1`` worth ``pseudo`` beams whose variance is all representation:
+    ``num <- lambda num + sum Q_b e_b / V_b^2``, ``den <- lambda den + sum Q_b^2 / V_b^2``,
+    ``c = num / den`` clipped to ``[0, ceiling]``. A filter starts as cautious as the layer
+    and keeps the information a map that matches the seabed better gives. (The likelihood
+    then counts the beams that share one map error once: ``c Q_b`` times
+    :func:`correlated_share`.) The innovations' weights use ``V_b = R_b + c Q_b`` of the
+    share so far; the per-beam excess is a noisy measure, so the share moves over tens of
+    pings, not one.
+
+    Parameters
+    ----------
+    num, den : float
+        The running sums (dimensionless).
+    forgetting : float
+        ``lambda`` in ``(0, 1]``.
+    ceiling : float
+        Largest share reported.
+    """
+
+    num: float = 5.0
+    den: float = 5.0
+    forgetting: float = 0.98
+    ceiling: float = 4.0
+
+    @classmethod
+    def prior(cls, forgetting: float, pseudo: float = 5.0) -> RepresentationShare:
+        """``c = 1`` worth ``pseudo`` beams, forgetting ``forgetting`` per ping."""
+        return cls(float(pseudo), float(pseudo), float(forgetting))
+
+    @property
+    def value(self) -> float:
+        """The share ``c`` in ``[0, ceiling]``."""
+        return float(np.clip(self.num / self.den, 0.0, self.ceiling)) if self.den > 0 else 1.0
+
+    def updated(
+        self, reads: PointReads | None, declared, extra, bias_var: float
+    ) -> RepresentationShare:
+        """Fold in a ping's innovations (read before its update).
+
+        Parameters
+        ----------
+        reads : PointReads or None
+            The ping read at the prior's unscented points; None leaves the share.
+        declared, extra : numpy.ndarray
+            ``(b,)`` every beam's declared variance ``R_b`` and representation variance
+            ``Q_b`` (before the share), map units squared.
+        bias_var : float
+            Variance of the common offset the values are relative to.
+        """
+        if reads is None or reads.used is None:
+            return self
+        excess = _innovations(reads, bias_var)
+        if excess is None:
+            return self
+        r = np.broadcast_to(np.asarray(declared, dtype=float), reads.used.shape)[reads.used]
+        q = np.broadcast_to(np.asarray(extra, dtype=float), reads.used.shape)[reads.used]
+        if not q.any():
+            return self
+        v2 = (r + self.value * q) ** 2
+        lam = self.forgetting
+        num = lam * self.num + float(np.sum(q * (excess - r) / v2))
+        den = lam * self.den + float(np.sum(q * q / v2))
+        if not (np.isfinite(num) and np.isfinite(den)):
+            return self
+        return replace(self, num=num, den=den)
 
 
 #: Share of the 3 x 3 plane-fit residual that the map's representation error is taken to be:
@@ -453,6 +554,7 @@ __all__ = [
     "MAP_MODELS",
     "CommonOffset",
     "PointReads",
+    "RepresentationShare",
     "ResidualScale",
     "check_map_model",
     "correlated_share",

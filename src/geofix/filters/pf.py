@@ -56,6 +56,7 @@ from scipy.special import logsumexp
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _particle_kernels as kernels
 from geofix.filters.base import Motion, Observation, RecursiveFilter
+from geofix.filters.hypothesis_offset import HypothesisOffset
 from geofix.filters.nuisance import check_map_model
 from geofix.maps.grid import Grid
 from geofix.measurement import (
@@ -85,6 +86,8 @@ class PfState:
         Particle likelihoods evaluated so far.
     resamples : int
         Number of resampling steps so far.
+    offset : HypothesisOffset or None
+        Each particle's common offset (``map_model=imperfect``), from the first ping on.
     """
 
     particles: np.ndarray
@@ -93,6 +96,7 @@ class PfState:
     spacing: float = 0.0
     evaluations: int = 0
     resamples: int = 0
+    offset: HypothesisOffset | None = None
 
     @functools.cached_property
     def weights(self) -> np.ndarray:
@@ -188,7 +192,7 @@ class Pf(RecursiveFilter):
     progressive_min_cells: float = 0.05
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
-    map_model: str = "exact"
+    map_model: str = "imperfect"
 
     def __post_init__(self) -> None:
         if self.particles < 10 or self.max_particles < self.particles:
@@ -245,6 +249,8 @@ class Pf(RecursiveFilter):
         count = state.particles.shape[0]
         if effective_sample_size(state.weights) < self.resample_threshold * count:
             state = self._resample(state, rng)
+        if state.offset is not None:
+            state = replace(state, offset=state.offset.predicted(motion.dt))
         draws = rng.standard_normal(state.particles.shape)
         displacement = np.asarray(motion.displacement, dtype=float)
         particles = kernels.moved(
@@ -270,12 +276,25 @@ class Pf(RecursiveFilter):
         """
         if not np.isfinite(obs.values).any():
             return state
+        if self.carries_offset and state.offset is None:
+            state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
 
         def likelihood(current: PfState) -> np.ndarray:
             return particle_log_likelihood(self, grid, current, obs, rng)
 
         state, reads = staged_update(self, state, likelihood, self._spread_copies, rng)
+        if state.offset is not None:
+            state = replace(state, offset=state.offset.updated(grid, state.particles, obs))
         return replace(state, evaluations=state.evaluations + reads)
+
+    @property
+    def carries_offset(self) -> bool:
+        """Each particle carries its own common offset (``map_model=imperfect``)."""
+        return self.map_model == "imperfect"
+
+    def offset_moments(self, state: PfState) -> tuple[float, float] | None:
+        """The posterior offset's mean and variance (map units), or None without one."""
+        return None if state.offset is None else state.offset.moments(state.weights)
 
     def _spread_copies(self, state: PfState, rng) -> PfState:
         """Resample (same count) and spread each copy uniformly over its original's share."""
@@ -287,6 +306,7 @@ class Pf(RecursiveFilter):
             particles=state.particles[index] + jitter,
             log_weight=np.full(count, -np.log(count)),
             resamples=state.resamples + 1,
+            offset=None if state.offset is None else state.offset.take(index),
         )
 
     def estimate(self, state: PfState) -> tuple[np.ndarray, np.ndarray]:
@@ -320,6 +340,7 @@ class Pf(RecursiveFilter):
             log_weight=log_weight,
             spacing=spacing,
             resamples=state.resamples + 1,
+            offset=None if state.offset is None else state.offset.take(index),
         )
 
 
@@ -463,14 +484,17 @@ def particle_log_likelihood(filt, grid: Grid, state: PfState, obs: Observation, 
     """
     var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
     args = (obs.heading, obs.offsets, obs.values)
+    bias_var, shift = obs.bias_var, None
+    if state.offset is not None:  # each particle's own offset, N(b_i, P)
+        bias_var, shift = state.offset.var, state.offset.mean
     if filt.discretisation_noise and state.spacing > 0:
         if uses_local_field(filt, state.spacing, state.cell):
             sides = state.spacing * np.eye(2)
             return local_field_log_likelihood(
-                grid, state.particles, *args, var, sides, obs.bias_var
+                grid, state.particles, *args, var, sides, bias_var, shift
             )
         var = var + spread_field_variance(grid, state, obs, rng)
-    return hypotheses_log_likelihood(grid, state.particles, *args, var, obs.bias_var)
+    return hypotheses_log_likelihood(grid, state.particles, *args, var, bias_var, shift)
 
 
 FIELD_VARIANCE_SUBSET = 2000

@@ -77,10 +77,12 @@ from geofix.filters import _grid_kernels as grid_kernels
 from geofix.filters import _grid_ops as ops
 from geofix.filters._pmf_errstate import conditional_motion, dvl_update, replace_marginal
 from geofix.filters.base import Motion, Observation, RecursiveFilter
+from geofix.filters.hypothesis_offset import HypothesisOffset, mixed_offsets, regridded_offsets
 from geofix.filters.nuisance import check_map_model
 from geofix.filters.pf import check_field_variance, uses_local_field
 from geofix.maps.grid import Grid
 from geofix.measurement import (
+    hypotheses_log_likelihood,
     local_field_log_likelihood,
     log_likelihood,
     node_grid_local_log_likelihood,
@@ -122,6 +124,8 @@ class PmfState:
     dvl : numpy.ndarray or None
         ``(n, 2)`` ``v_INS - v_DVL`` at every sample, m/s, when a DVL aids
         (``model=errstate``).
+    offset : HypothesisOffset or None
+        Each node's common offset (``map_model=imperfect``), from the first ping on.
     """
 
     log_weight: np.ndarray
@@ -136,6 +140,7 @@ class PmfState:
     indicated: np.ndarray | None = None
     step: int = 0
     dvl: np.ndarray | None = None
+    offset: HypothesisOffset | None = None
 
     @property
     def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -272,7 +277,7 @@ class Pmf(RecursiveFilter):
     ambiguity_mass: float = 0.05
     model: str = "rw"
     use_dvl: bool = True
-    map_model: str = "exact"
+    map_model: str = "imperfect"
 
     def __post_init__(self) -> None:
         if self.model not in ("rw", "errstate"):
@@ -328,7 +333,11 @@ class Pmf(RecursiveFilter):
         kernels = (k0, k1)
         log_weight = ops.convolve_log(state.log_weight, kernels)
         centre = state.centre + np.asarray(motion.displacement, dtype=float)
-        return replace(state, log_weight=log_weight, centre=centre)
+        offset = state.offset
+        if offset is not None:
+            mean = mixed_offsets(state.log_weight, offset.mean, kernels)
+            offset = replace(offset, mean=mean).predicted(motion.dt)
+        return replace(state, log_weight=log_weight, centre=centre, offset=offset)
 
     def update(self, state: PmfState, obs: Observation, grid: Grid, rng) -> PmfState:
         """Add every node's measurement log-likelihood (all beams at once).
@@ -340,6 +349,13 @@ class Pmf(RecursiveFilter):
             state = self._dvl_update(state, state.dvl[obs.index])
         if not np.isfinite(obs.values).any():
             return state
+        if self.carries_offset and state.offset is None:
+            state = replace(state, offset=HypothesisOffset.start(state.shape, obs))
+        if state.offset is not None:
+            offset = state.offset
+            state = self._update_with_offsets(state, obs, grid)
+            xy = ops.node_positions(*state.frame, state.shape)
+            return replace(state, offset=offset.updated(grid, xy, obs))
         if self.discretisation_noise and uses_local_field(self, state.spacing.max(), state.cell):
             return self._update_local(state, obs, grid)
         if obs.bias_var > 0 or grid.interpolation != "bilinear":
@@ -385,6 +401,37 @@ class Pmf(RecursiveFilter):
             sides,
             obs.bias_var,
         )
+        log_weight = ops.normalise(state.log_weight + ll)
+        return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
+
+    @property
+    def carries_offset(self) -> bool:
+        """Each node carries its own common offset (``map_model=imperfect``)."""
+        return self.map_model == "imperfect"
+
+    def offset_moments(self, state: PmfState) -> tuple[float, float] | None:
+        """The posterior offset's mean and variance (map units), or None without one."""
+        if state.offset is None:
+            return None
+        return state.offset.moments(np.exp(state.log_weight))
+
+    def _update_with_offsets(self, state: PmfState, obs: Observation, grid: Grid) -> PmfState:
+        """The update marginalised over each node's own offset ``N(b_i, P)``."""
+        offset = state.offset
+        assert offset is not None
+        xy = ops.node_positions(*state.frame, state.shape)
+        args = (obs.heading, obs.offsets, obs.values)
+        if self.discretisation_noise and uses_local_field(self, state.spacing.max(), state.cell):
+            sides = (state.axes * state.spacing).T
+            ll = local_field_log_likelihood(
+                grid, xy, *args, obs.noise_var, sides, offset.var, offset.mean
+            )
+        else:
+            var = obs.noise_var
+            if self.discretisation_noise:
+                predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
+                var = var + node_field_variance(predicted + offset.mean[..., None], obs.values)
+            ll = hypotheses_log_likelihood(grid, xy, *args, var, offset.var, offset.mean)
         log_weight = ops.normalise(state.log_weight + ll)
         return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
 
@@ -486,8 +533,14 @@ class Pmf(RecursiveFilter):
         kernels = (k0, k1)
         mu_next = f @ mu
         sigma_next = f @ sigma @ f.T + q
+        offset = state.offset
+        if offset is not None:
+            moved_offsets = regridded_offsets(offset.mean, state.frame, pulled, shape)
+            mixed = mixed_offsets(log_weight, moved_offsets, kernels)
+            offset = replace(offset, mean=mixed).predicted(motion.dt)
         return replace(
             state,
+            offset=offset,
             log_weight=ops.convolve_log(log_weight, kernels),
             centre=centre,
             axes=axes,
@@ -507,9 +560,14 @@ class Pmf(RecursiveFilter):
         if not self._off_frame(state, frame, shape):
             return state
         log_weight = ops.resample_grid(state.log_weight, state.frame, frame, (mean, cov), shape)
+        offset = state.offset
+        if offset is not None:
+            moved = regridded_offsets(offset.mean, state.frame, frame, log_weight.shape)
+            offset = replace(offset, mean=moved)
         centre, axes, spacing = frame
         return replace(
             state,
+            offset=offset,
             log_weight=log_weight,
             centre=centre,
             axes=axes,
