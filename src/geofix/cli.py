@@ -455,6 +455,20 @@ def replay_command(
         int | None, typer.Option(help="Beams of a ping used per update (default 64).")
     ] = None,
     trial: Annotated[int, typer.Option(help="Trial of a geofix export log.")] = 0,
+    field: Annotated[
+        list[str] | None,
+        typer.Option(help="MGD77T channel: depth, gravity or magnetic (default depth)."),
+    ] = None,
+    segment: Annotated[
+        int | None,
+        typer.Option(help="MGD77T continuous segment of the field, from 0 (default longest)."),
+    ] = None,
+    start_h: Annotated[
+        float | None, typer.Option(help="Replay from this many hours after the start.")
+    ] = None,
+    hours: Annotated[
+        float | None, typer.Option(help="Replay this many hours (default: to the end).")
+    ] = None,
 ) -> None:
     """Replay a logged mission ping by ping through the online navigator."""
 
@@ -467,7 +481,19 @@ def replay_command(
         if beams is not None:
             settings["max_update_beams"] = beams
         result, paths = replay_log(
-            log, map_path, method, ins, ins_initial_error_m, seed, out, settings, trial
+            log,
+            map_path,
+            method,
+            ins,
+            ins_initial_error_m,
+            seed,
+            out,
+            settings,
+            trial,
+            field_name=_one_field(field),
+            segment=segment,
+            start_h=start_h,
+            hours=hours,
         )
         if json_output:
             sys.stdout.write(json.dumps(result.summary) + "\n")
@@ -477,6 +503,18 @@ def replay_command(
             _out.print(f"{label}: {path}")
 
     _guarded(go)
+
+
+def _one_field(fields: list[str] | None) -> str | None:
+    """The one ``--field`` of a replay (several fields in one filter are not supported)."""
+    if not fields:
+        return None
+    if len(set(fields)) > 1:
+        raise GeofixError(
+            f"replay: one --field at a time for now (got {', '.join(fields)}); "
+            "several fields in one filter are not supported yet"
+        )
+    return fields[0]
 
 
 def _print_replay(summary: dict) -> None:

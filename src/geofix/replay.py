@@ -322,6 +322,75 @@ def _kept(mission: Mission, keep: np.ndarray) -> Mission:
     )
 
 
+def window_mission(mission: Mission, start_h: float | None = None, hours: float | None = None):
+    """The pings of ``mission`` from ``start_h`` hours after its start, ``hours`` long.
+
+    Times are rebased on the window's first ping (``start_utc`` moves with them); per-ping
+    arrays of ``meta`` (an MGD77T mission's ``records``, ``lon``, ``lat``, ``placed``) are
+    cut alike, and ``meta["window_h"]`` records ``(start_h, hours)``.
+
+    Parameters
+    ----------
+    mission : Mission
+        The log (one segment of a trackline, or any mission).
+    start_h : float, optional
+        Start of the window, hours after the mission's first ping (default 0).
+    hours : float, optional
+        Length of the window, hours (default: to the mission's end).
+
+    Returns
+    -------
+    Mission
+        The window (the mission itself when neither is given).
+
+    Raises
+    ------
+    ConfigError
+        A negative or non-finite start, a length that is not positive, a window that does
+        not lie within the mission (the message gives its length in hours), or one with
+        fewer than two pings.
+    """
+    if start_h is None and hours is None:
+        return mission
+    start = 0.0 if start_h is None else float(start_h)
+    if not (np.isfinite(start) and start >= 0):
+        raise ConfigError(f"--start-h must be a finite number of hours >= 0, got {start_h}")
+    if hours is not None and not (np.isfinite(hours) and hours > 0):
+        raise ConfigError(f"--hours must be a finite number of hours > 0, got {hours}")
+    times = np.asarray(mission.times, dtype=float)
+    span_h = (times[-1] - times[0]) / 3600.0
+    stop = span_h if hours is None else start + float(hours)
+    if start >= span_h or stop > span_h + _WINDOW_SLACK_H:
+        raise ConfigError(
+            f"window {start:g} .. {stop:g} h lies outside {mission.name!r}, which is "
+            f"{span_h:.2f} h long: choose --start-h and --hours within it"
+        )
+    rel = (times - times[0]) / 3600.0
+    index = np.flatnonzero((rel >= start) & (rel <= stop + 1e-9))
+    if index.size < 2:
+        raise ConfigError(f"window {start:g} .. {stop:g} h of {mission.name!r} holds < 2 pings")
+    return _rebased(mission, index, (start, stop - start))
+
+
+_WINDOW_SLACK_H = 1.0 / 3600.0
+"""A window may end this much (one second, in hours) after the mission's last ping."""
+
+
+def _rebased(mission: Mission, index: np.ndarray, window: tuple[float, float]) -> Mission:
+    """Pings ``index`` (consecutive) with times rebased and per-ping meta cut."""
+    part = mission.subset(slice(int(index[0]), int(index[-1]) + 1))
+    first = float(part.times[0])
+    meta = {
+        key: value[index[0] : index[-1] + 1]
+        if isinstance(value, np.ndarray) and value.shape[:1] == (mission.n,)
+        else value
+        for key, value in mission.meta.items()
+    }
+    meta["window_h"] = window
+    start_utc = None if mission.start_utc is None else mission.start_utc + first
+    return replace(part, times=part.times - first, start_utc=start_utc, meta=meta)
+
+
 def drive(nav, mission: Mission, inputs: ReplayInput, noise_var=None) -> list[Estimate]:
     """Feed one navigator the mission: init, then per ping ``motion`` and ``measure``.
 
@@ -626,6 +695,10 @@ def replay_log(
     out_dir=None,
     settings: dict | None = None,
     trial: int = 0,
+    field_name: str | None = None,
+    segment: int | None = None,
+    start_h: float | None = None,
+    hours: float | None = None,
 ) -> tuple[ReplayResult, dict]:
     """``geofix replay``: read the log and the map, replay, write the outputs.
 
@@ -640,6 +713,15 @@ def replay_log(
         Scenario YAML whose ``ins:`` numbers drive the INS simulated on a GNSS log.
     out_dir : str or pathlib.Path, optional
         Folder for ``estimates.csv``, ``estimates.nc`` and ``replay.png`` (none if None).
+    field_name : {"depth", "gravity", "magnetic"}, optional
+        Channel of an MGD77T log (``--field``) (default ``depth``, ``gravity`` for a file without
+        depths); a depth or gravity field needs a map of that kind.
+    segment : int, optional
+        0-based continuous segment of that field in an MGD77T log
+        (:func:`geofix.logs.mgd77.field_segments`); default the longest.
+    start_h, hours : float, optional
+        Replay only the window from ``start_h`` hours after the mission's (segment's)
+        start, ``hours`` long (:func:`window_mission`); any log.
 
     Returns
     -------
@@ -647,7 +729,6 @@ def replay_log(
         ``(ReplayResult, {label: path})``.
     """
     from geofix.logs.exported import read_exported
-    from geofix.logs.read import read_mission
     from geofix.maps.gridding import load_map_error
     from geofix.maps.io import load_grid
     from geofix.maps.project import frame_proj
@@ -674,12 +755,46 @@ def replay_log(
         frame = grid.meta.get("projection")
         if frame is not None:
             frame_proj(frame, f"map {map_path}")
-        mission = read_mission(log, frame=frame, trial=trial)
+        mission = _read_log(log, frame, trial, field_name, segment)
+        _check_field_map(mission, grid, map_path)
         if mission.frame is not None and frame is None:
             raise ConfigError(
                 f"replay: the log is in lon/lat but map {map_path} has no projection; "
                 "grid it with geofix grid or load a lon/lat map"
             )
+    mission = window_mission(mission, start_h, hours)
     result = replay(mission, grid, methods, ins, initial_error_m, seed, settings, map_error)
     paths = {} if out_dir is None else write_outputs(result, grid, out_dir)
     return result, paths
+
+
+def _is_mgd77(log) -> bool:
+    from geofix.logs.mgd77 import MGD77T_SUFFIXES
+
+    return not str(log).startswith("builtin:") and Path(log).suffix.lower() in MGD77T_SUFFIXES
+
+
+def _read_log(log, frame, trial: int, field: str | None, segment: int | None) -> Mission:
+    """The mission to replay: an MGD77T log's segment of ``field``, else the log's mission."""
+    from geofix.logs.mgd77 import field_segments, pick_segment
+    from geofix.logs.read import read_mission
+
+    if not _is_mgd77(log):
+        if field is not None or segment is not None:
+            raise ConfigError("replay: --field and --segment apply to MGD77T logs (.m77t) only")
+        return read_mission(log, frame=frame, trial=trial)
+    name, missions = field_segments(log, field, frame=frame)
+    return pick_segment(missions, segment, f"{Path(log).name} ({name})")
+
+
+def _check_field_map(mission: Mission, grid: Grid, map_path) -> None:
+    """Refuse a depth or gravity mission on a map of the other kind (ConfigError)."""
+    from geofix.maps.grid import KINDS
+
+    if mission.meta.get("reader") != "mgd77" or mission.kind not in KINDS:
+        return
+    if grid.kind != mission.kind:
+        raise ConfigError(
+            f"replay: --field {mission.kind} needs a {mission.kind} map; "
+            f"map {map_path} is a {grid.kind} map"
+        )

@@ -709,3 +709,85 @@ def _segment_missions(
                 )
             )
     return missions
+
+
+# ---------------------------------------------------------------------- one segment
+def field_segments(
+    path: str | Path, field_name: str | None = None, frame: str | None = None
+) -> tuple[str, list[Mission]]:
+    """The field a replay of an MGD77T file uses and its missions (segments) in time order.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The ``.m77t`` file.
+    field_name : {"depth", "gravity", "magnetic"}, optional
+        The channel; by default ``depth``, or ``gravity`` for a file without depths (as
+        :func:`longest_mission`).
+    frame : str, optional
+        PROJ string of the metric frame (a map's projection).
+
+    Returns
+    -------
+    tuple
+        ``(field, missions)``: the missions of that field read with the default limits of
+        :func:`read_mgd77`, in time order; segment ``N`` of ``geofix replay --segment N``
+        is ``missions[N]``.
+
+    Raises
+    ------
+    ConfigError
+        An unknown field, a file without that field's column or without one segment of
+        it as long as :data:`DEFAULT_MIN_SEGMENT_S`, or a reader's error.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"MGD77T file not found: {path}")
+    if field_name is None:
+        header = _header(path)
+        field_name = next((f for f in ("depth", "gravity") if FIELDS[f][0] in header), "depth")
+    if field_name not in FIELDS:
+        raise ConfigError(f"unknown --field {field_name!r}; choose from {', '.join(FIELDS)}")
+    column, _, units = FIELDS[field_name]
+    if column not in _header(path):
+        raise ConfigError(f"{path.name} has no {field_name} ({column} column): try another --field")
+    try:
+        missions = read_mgd77(path, fields=(field_name,), frame=frame)
+    except ConfigError as exc:
+        if "no " in str(exc) and "segment of at least" in str(exc):
+            raise ConfigError(
+                f"{path.name} has no {field_name} ({column}, {units}) segment of at least "
+                f"{DEFAULT_MIN_SEGMENT_S / 3600:g} h: try another --field"
+            ) from None
+        raise
+    return field_name, missions
+
+
+def pick_segment(missions: list[Mission], segment: int | None, label: str = "") -> Mission:
+    """Segment ``segment`` of a field's missions, or the longest (ties: the earlier).
+
+    Parameters
+    ----------
+    missions : list of Mission
+        One field's missions in time order (:func:`field_segments`).
+    segment : int, optional
+        0-based segment number; None picks the longest.
+    label : str
+        The file and field named in an error.
+
+    Raises
+    ------
+    ConfigError
+        ``segment`` is out of range (the message lists every segment's length, hours).
+    """
+    if not missions:
+        raise ConfigError(f"{label}: no segment")
+    if segment is None:
+        return max(missions, key=lambda m: m.duration_s)
+    if isinstance(segment, bool) or not 0 <= int(segment) < len(missions):
+        lengths = ", ".join(f"{k}: {m.duration_s / 3600:.1f} h" for k, m in enumerate(missions))
+        raise ConfigError(
+            f"--segment {segment} is out of range: {label} has {len(missions)} segment(s) "
+            f"numbered 0..{len(missions) - 1} ({lengths})"
+        )
+    return missions[int(segment)]
