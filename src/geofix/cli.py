@@ -430,7 +430,9 @@ def grid_command(
 
 @app.command("replay")
 def replay_command(
-    log: Annotated[str, typer.Argument(help="GSF file, geofix export, nav/soundings folder.")],
+    log: Annotated[
+        str, typer.Argument(help="GSF file, MGD77T .m77t, geofix export, nav/soundings folder.")
+    ],
     method: Annotated[
         list[str], typer.Option("--method", "-m", help="Recursive method spec, e.g. 'pmf'.")
     ],
