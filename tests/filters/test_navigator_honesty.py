@@ -1,6 +1,7 @@
 """The online navigator tells the truth about itself: lost falls back to the INS, and
 ``converged`` is claimed only when the filter's consistency supports it."""
 
+import warnings
 from dataclasses import fields
 
 import numpy as np
@@ -280,3 +281,26 @@ def test_the_server_does_not_call_one_ping_converged(ex1811):
     first = replies[0]
     error = np.hypot(first["x"] - mission.nav[0][0], first["y"] - mission.nav[0][1])
     assert error > 20.0  # the first ping's fix is tens of metres off: rightly not converged
+
+
+@pytest.mark.parametrize("poison", [1e160, -1e200, 1e308])
+def test_a_poisoned_ping_is_refused_and_the_navigator_keeps_its_state(poison):
+    """A reading the input checks let through cannot leave a non-finite estimate."""
+    grid = fractal_terrain((128, 128), 10.0, rng=np.random.default_rng(0), name="synthetic")
+    nav = Navigator(grid, "pmf", {"noise_std": 0.3, "gate_nis": None}, seed=1)
+    nav.init(0.0, (600.0, 600.0), 30.0, 0.0)
+    offsets = np.column_stack([np.linspace(-50.0, 50.0, 9), np.zeros(9)])
+    clean = grid.sample(600.0 + offsets[:, 0], 600.0 + offsets[:, 1])
+    nav.motion(1.0, (600.0, 600.0), 0.0)
+    before = nav.measure(1.0, np.column_stack([offsets, clean]))
+    nav.motion(2.0, (600.0, 600.0), 0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # and no overflow warning on the way
+        poisoned = nav.measure(2.0, np.column_stack([offsets, clean + poison]))
+    assert not poisoned.accepted and poisoned.rejected == 1
+    np.testing.assert_allclose(poisoned.position, before.position)
+    assert np.isfinite(poisoned.covariance).all()
+    nav.motion(3.0, (600.0, 600.0), 0.0)
+    after = nav.measure(3.0, np.column_stack([offsets, clean]))
+    assert after.accepted and np.hypot(*(after.position - (600.0, 600.0))) < before.sigma_m
+    assert after.sigma_m < before.sigma_m

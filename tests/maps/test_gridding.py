@@ -56,7 +56,9 @@ def test_gridding_refuses_bad_input_with_the_reason():
         grid_soundings(x, y, z, 0.0)
     with pytest.raises(MapError, match="at least 3 valid soundings"):
         grid_soundings([0.0, 1.0], [0.0, 1.0], [1.0, np.nan], 1.0)
-    with pytest.raises(MapError, match="GB"):
+    from geofix.errors import MemoryBudgetError
+
+    with pytest.raises(MemoryBudgetError, match=r"10000001 x 10000001 cells .* would need"):
         grid_soundings([0.0, 1e7, 0.0], [0.0, 1e7, 1.0], [1.0, 2.0, 3.0], 1.0)
 
 
