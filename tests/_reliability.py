@@ -67,7 +67,13 @@ def record(outcome: Outcome) -> None:
         f.write(json.dumps(row) + "\n")
 
 
-def run_cli(case: str, args: list[str], env: dict | None = None, trace: bool = False) -> Outcome:
+def run_cli(
+    case: str,
+    args: list[str],
+    env: dict | None = None,
+    trace: bool = False,
+    suite: str = "bad-inputs",
+) -> Outcome:
     """Run ``geofix ARGS`` in this process (typer's runner), stdout and stderr together.
 
     Parameters
@@ -80,6 +86,8 @@ def run_cli(case: str, args: list[str], env: dict | None = None, trace: bool = F
         Environment variables set during the run.
     trace : bool
         Measure the peak of Python-visible allocations (numpy included) with tracemalloc.
+    suite : str
+        The suite the outcome is counted in (``benchmarks/sections/reliability.py``).
     """
     from geofix.cli import app
     from geofix.memory import memory_budget_bytes
@@ -112,6 +120,7 @@ def run_cli(case: str, args: list[str], env: dict | None = None, trace: bool = F
         crashed or "Traceback" in result.output,
         peak,
         budget,
+        suite,
     )
     record(outcome)
     return outcome

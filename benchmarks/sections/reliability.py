@@ -1,8 +1,11 @@
 """Reliability: bad input, memory refusals, killed campaigns -- counted from the test suite.
 
 Runs the bad-input, fuzz and kill tests (``tests/test_bad_inputs.py``,
-``tests/test_fuzz_inputs.py``, ``tests/test_kill.py``) with ``GEOFIX_RELIABILITY_LOG`` set,
-so that every judged outcome is logged, and counts the log: nothing here is typed by hand.
+``tests/test_fuzz_inputs.py``, ``tests/test_fuzz_faces.py``, ``tests/test_kill.py``) with
+``GEOFIX_RELIABILITY_LOG`` set, so that every judged outcome is logged, and counts the log:
+nothing here is typed by hand. The generated inputs are counted per face: ``run``
+(scenarios, map files), ``grid`` (soundings tables), ``replay`` (nav / soundings tables),
+the GSF reader (corrupted files) and ``serve`` (message streams).
 """
 
 from __future__ import annotations
@@ -21,11 +24,20 @@ from _common import ROOT, md_table
 TITLE = "Reliability — bad input, memory guards, killed campaigns"
 ORDER = 95
 
-TEST_FILES = ("tests/test_bad_inputs.py", "tests/test_fuzz_inputs.py", "tests/test_kill.py")
+TEST_FILES = (
+    "tests/test_bad_inputs.py",
+    "tests/test_fuzz_inputs.py",
+    "tests/test_fuzz_faces.py",
+    "tests/test_kill.py",
+)
 SUITES = {
     "bad-inputs": "hand-made bad inputs (CLI, in process)",
-    "fuzz-scenario": "generated scenarios (hypothesis)",
-    "fuzz-map": "generated map files (hypothesis)",
+    "fuzz-scenario": "`run`: generated scenarios (hypothesis)",
+    "fuzz-map": "`run`: generated map files (hypothesis)",
+    "fuzz-grid": "`grid`: generated soundings tables, CSV and Parquet (hypothesis)",
+    "fuzz-replay": "`replay`: generated nav / soundings tables (hypothesis)",
+    "fuzz-gsf": "`grid`: corrupted GSF files (hypothesis)",
+    "fuzz-serve": "`serve`: generated message streams, one connection each (hypothesis)",
     "kill": "SIGKILL of a `--jobs 2` campaign",
 }
 TIMEOUT_S = 1800
@@ -82,7 +94,14 @@ def _intro() -> str:
         "exact mix of examples can still shift between hypothesis versions); the fuzz tests "
         "use a 64 MB budget so that sizes are refused rather than allocated. *Accepted* "
         "inputs are valid ones (a fuzzed scenario that is still a valid mission, `--jobs` "
-        "above the cores: capped with a one-line warning).\n"
+        "above the cores: capped with a one-line warning). The generated inputs of `grid`, "
+        "`replay` and the GSF reader run the command (or the function it calls) in process "
+        "with a 16 MB budget (512 MB for `replay`, which holds a default `pmf`); their "
+        "tracemalloc peak is checked against it. A `serve` case is a stream of one to nine "
+        "lines (JSON requests with hostile values, non-JSON lines) on one connection to a "
+        "server on 127.0.0.1: *accepted* when every reply is a result, *clean error* when "
+        "each error reply is one plain line, the connection still takes an `init` and its "
+        "memory reservation is given back when it closes.\n"
     )
 
 
@@ -130,11 +149,11 @@ def _suite_table(rows: list[dict]) -> str:
 
 def _status_line(status: dict, seconds: float) -> str:
     parts = [f"`{name}`: {result}" for name, result in status.items()]
-    return "Test runs: " + "; ".join(parts) + f" (all three in {seconds:.0f} s).\n"
+    return "Test runs: " + "; ".join(parts) + f" (all in {seconds:.0f} s).\n"
 
 
 def _reproduce() -> str:
     return (
         "Regenerate with `python benchmarks/results.py --only reliability`; the tests alone "
-        "with `pytest tests/test_bad_inputs.py tests/test_fuzz_inputs.py tests/test_kill.py`.\n"
+        f"with `pytest {' '.join(TEST_FILES)}`.\n"
     )

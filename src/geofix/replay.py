@@ -88,9 +88,9 @@ def replay_inputs(mission: Mission, ins=None, initial_error_m=None, seed: int = 
     ins : InsSpec or dict, optional
         INS numbers for a GNSS log (default :data:`DEFAULT_INS`).
     initial_error_m : float, optional
-        Initial INS position error, metres, in a direction drawn from ``seed`` (GNSS
-        logs); for a dead-reckoned log, the prior sigma is half of it when the log states
-        none.
+        Initial INS position error, metres (at most :data:`MAX_POSITION_M`), in a
+        direction drawn from ``seed`` (GNSS logs); for a dead-reckoned log, the prior
+        sigma is half of it when the log states none.
     seed : int
         Seed of the INS simulation.
     """
@@ -99,8 +99,9 @@ def replay_inputs(mission: Mission, ins=None, initial_error_m=None, seed: int = 
     from geofix.nav.spec import InsSpec
     from geofix.nav.trajectory import TrueTrajectory
 
-    if initial_error_m is not None and not (np.isfinite(initial_error_m) and initial_error_m >= 0):
-        raise ConfigError(f"--ins-initial-error-m must be >= 0, got {initial_error_m}")
+    if initial_error_m is not None and not 0 <= initial_error_m <= MAX_POSITION_M:
+        limit = f"0 .. {MAX_POSITION_M:g} m"
+        raise ConfigError(f"--ins-initial-error-m must lie within {limit}, got {initial_error_m}")
     spec = ins if isinstance(ins, InsSpec) else InsSpec(**(DEFAULT_INS if ins is None else ins))
     try:
         model = InsErrorModel.from_specs(spec)

@@ -5,7 +5,10 @@ the ship's GNSS position (so ``nav_source = "gnss"``), heading, roll and pitch, 
 beam's ``across_track`` / ``along_track`` offsets (metres, already corrected for attitude
 by the sonar's processing) with the value ``-depth`` (elevation, negative below the sea
 surface, the sign of geofix depth maps). Beams with a non-zero ``beam_flags`` entry (GSF:
-0 = accepted) or a zero depth are dropped (NaN).
+0 = accepted) or a zero depth are dropped (NaN). So are beams no sonar can measure, the
+mark of a corrupted record: an offset beyond :data:`MAX_GSF_OFFSET_M` or a depth beyond
+the physical range (:data:`geofix.conventions.PHYSICAL_LIMITS`), with one warning per
+file (one such beam would otherwise stretch a gridded map over thousands of kilometres).
 
 **Latitude and longitude.** ``gsfpy`` 2.0 declares the ping structure's two position
 fields in the order ``longitude, latitude`` while the GSF C library
@@ -21,12 +24,16 @@ from pathlib import Path
 
 import numpy as np
 
-from geofix.errors import ConfigError
+from geofix.conventions import PHYSICAL_LIMITS
+from geofix.errors import ConfigError, GeofixWarning
 from geofix.logs.mission import Mission
 
 GSF_SUFFIXES = (".gsf", ".mb121")
 MAX_GSF_BEAMS = 4096
 """Most beams per ping read from a GSF file (larger counts are refused as corrupt)."""
+MAX_GSF_OFFSET_M = 1.0e5
+"""Largest ``|across_track|`` and ``|along_track|`` of a beam kept, metres (as a replay's
+``geofix.replay.MAX_BEAM_OFFSET_M``); a farther beam is a corrupted record."""
 
 
 def read_gsf(path: str | Path, frame: str | None = None, max_pings: int | None = None) -> Mission:
@@ -53,6 +60,11 @@ def read_gsf(path: str | Path, frame: str | None = None, max_pings: int | None =
     ------
     ConfigError
         The file is missing, unreadable, or holds no swath-bathymetry ping.
+
+    Warns
+    -----
+    GeofixWarning
+        Once, when beams with an impossible offset or depth were dropped.
     """
     path = Path(path)
     if not path.is_file():
@@ -60,7 +72,23 @@ def read_gsf(path: str | Path, frame: str | None = None, max_pings: int | None =
     pings = _read_pings(path, max_pings)
     if not pings:
         raise ConfigError(f"{path}: no swath bathymetry ping in the GSF file")
+    _warn_corrupt_beams(pings, path)
     return _mission(pings, path, frame)
+
+
+def _warn_corrupt_beams(pings: list[dict], path: Path) -> None:
+    corrupt = [p["corrupt"] for p in pings]
+    if not any(corrupt):
+        return
+    import warnings
+
+    warnings.warn(
+        f"{path.name}: {sum(corrupt)} beams in {sum(1 for c in corrupt if c)} of "
+        f"{len(pings)} pings dropped as corrupt (an offset beyond {MAX_GSF_OFFSET_M:g} m "
+        f"or a depth beyond {PHYSICAL_LIMITS['depth']:g} m)",
+        GeofixWarning,
+        stacklevel=3,
+    )
 
 
 def _read_pings(path: Path, max_pings: int | None) -> list[dict]:
@@ -98,7 +126,13 @@ def _ping_values(ping, path: Path) -> dict:
 
     depth = beams("depth")
     flags = beams("beam_flags") if ping.beam_flags else np.zeros(nb)
-    value = np.where((flags == 0) & (depth != 0), -depth, np.nan)
+    across, along = beams("across_track"), beams("along_track")
+    with np.errstate(invalid="ignore"):
+        corrupt = (np.abs(across) > MAX_GSF_OFFSET_M) | (np.abs(along) > MAX_GSF_OFFSET_M)
+        corrupt |= np.abs(depth) > PHYSICAL_LIMITS["depth"]
+    value = np.where((flags == 0) & (depth != 0) & ~corrupt, -depth, np.nan)
+    across[corrupt] = np.nan
+    along[corrupt] = np.nan
     return {
         "t": float(ping.ping_time.tv_sec) + 1e-9 * float(ping.ping_time.tv_nsec),
         "lat": float(ping.longitude),  # gsfpy's field order is swapped: see the module text
@@ -106,7 +140,8 @@ def _ping_values(ping, path: Path) -> dict:
         "heading": float(ping.heading),
         "roll": float(ping.roll),
         "pitch": float(ping.pitch),
-        "beams": np.column_stack([beams("across_track"), beams("along_track"), value]),
+        "beams": np.column_stack([across, along, value]),
+        "corrupt": int(corrupt.sum()),
     }
 
 

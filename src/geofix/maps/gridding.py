@@ -193,12 +193,26 @@ def _interpolate(centroids, block_mean, centres, x0, y0, nx, ny, cell, max_gap_c
         fitted = vd.Linear().fit(centroids, block_mean)
         mean[near] = fitted.predict((gx[near], gy[near]))
     except Exception as exc:  # a degenerate (collinear) set of cells
-        raise MapError(f"gridding: cannot interpolate the cell means: {exc}") from None
+        raise MapError(_interpolation_error(exc)) from None
     rim = near & np.isnan(mean)
     if rim.any():  # outside the hull of the means: the nearest cell mean
         nearest = vd.KNeighbors(k=1).fit(centroids, block_mean)
         mean[rim] = nearest.predict((gx[rim], gy[rim]))
     return mean
+
+
+def _interpolation_error(exc: Exception) -> str:
+    """One short line for a failed interpolation (Qhull's own text runs to 60 lines)."""
+    from scipy.spatial import QhullError
+
+    if isinstance(exc, QhullError):
+        return (
+            "gridding: the cells with soundings lie on one line, so no map can be "
+            "interpolated between them (soundings spread across the track, or a smaller "
+            "--cell-m, are needed)"
+        )
+    first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+    return f"gridding: cannot interpolate the cell means: {first[:160]}"
 
 
 def error_layer_grid(grid: Grid, std: np.ndarray) -> Grid | None:
