@@ -659,7 +659,7 @@ def beam_gradients(
     return np.nan_to_num(gx, nan=0.0), np.nan_to_num(gy, nan=0.0)
 
 
-def sample_information(gx, gy, beam_var, valid=None) -> np.ndarray:
+def sample_information(gx, gy, beam_var, valid=None, offset_var: float = 0.0) -> np.ndarray:
     """Fisher information of each sample about the vehicle position.
 
     Parameters
@@ -670,6 +670,13 @@ def sample_information(gx, gy, beam_var, valid=None) -> np.ndarray:
         Measurement variance, field units squared: a scalar or ``(b,)`` per beam.
     valid : array_like of bool, optional
         ``(n, b)``; False for a missing measurement (it carries no information).
+    offset_var : float
+        Variance ``P`` of an offset common to the beams of each sample, a nuisance drawn
+        anew per sample, field units squared (0: none; ``inf``: unknown). The residual's
+        covariance is then ``R + P 1 1^T`` and the information
+        ``sum w g g^T - P u u^T / (1 + P S)`` with ``u = sum w g``, ``S = sum w``
+        (``w = 1 / R_b``; Sherman-Morrison): what the sample's shape tells, its level
+        not.
 
     Returns
     -------
@@ -684,6 +691,15 @@ def sample_information(gx, gy, beam_var, valid=None) -> np.ndarray:
     sxx = (w * gx * gx).sum(axis=-1)
     sxy = (w * gx * gy).sum(axis=-1)
     syy = (w * gy * gy).sum(axis=-1)
+    if offset_var > 0:
+        total = w.sum(axis=-1)
+        ux, uy = (w * gx).sum(axis=-1), (w * gy).sum(axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if np.isinf(offset_var):
+                c = np.where(total > 0, 1.0 / total, 0.0)
+            else:
+                c = offset_var / (1.0 + offset_var * total)
+        sxx, sxy, syy = sxx - c * ux * ux, sxy - c * ux * uy, syy - c * uy * uy
     return np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)
 
 

@@ -67,7 +67,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from geofix.maps.grid import Grid
-from geofix.measurement import beam_gradients, inverse_trace, sample_information
+from geofix.measurement import (
+    beam_gradients,
+    inverse_trace,
+    predict_track,
+    sample_information,
+)
 from geofix.sim.sensing import TRUTH_READ
 
 #: Smallest per-step process variance, m^2 (the same floor as the filters' motion model).
@@ -309,6 +314,60 @@ def trial_crlb(trial, grid: Grid, beam_var=None) -> TrialBound:
         ``trace`` of the bounds, m^2.
     """
     info = trial_information(trial, grid, beam_var)
+    rw = _random_walk_traces(trial, info)
+    last = trial.leg_slices()[-1]
+    batch = float(inverse_trace(info[last].sum(axis=0)))
+    traces = _bound_traces(trial, info, rw)
+    return TrialBound(float(traces[-1]), batch, float(np.mean(traces)), float(rw[-1]))
+
+
+def map_error_variance_at_track(trial, grid: Grid, prior: Grid) -> float:
+    """Mean square of the prior map's error at a trial's footprints, less its mean.
+
+    ``seabed - prior`` read at every valid footprint of the true track (the seabed with the
+    simulator's read, the prior bilinear), its mean (a common offset, which the bound
+    treats as a nuisance of its own) removed, field units squared; 0 when the prior is the
+    seabed.
+    """
+    if prior is grid:
+        return 0.0
+    truth = predict_track(grid, trial.truth, trial.true_heading, trial.offsets, TRUTH_READ)
+    read = predict_track(prior, trial.truth, trial.true_heading, trial.offsets, "bilinear")
+    error = (truth - read)[np.isfinite(trial.measured)]
+    error = error[np.isfinite(error)]
+    return float(np.var(error)) if error.size else 0.0
+
+
+def imperfect_map_crlb(trial, grid: Grid, beam_var=None, offset_var=np.inf) -> TrialBound:
+    """The bounds of :func:`trial_crlb` for the problem a vehicle with the prior map has.
+
+    The readings are the seabed's (``grid``) plus noise; the vehicle knows the prior map
+    (``trial.prior_map``) only. To it the readings are the prior plus the map's error plus
+    noise: the information is taken from the prior's gradients at the true footprints,
+    each beam's variance is the declared one plus the map error's variance at the track
+    (:func:`map_error_variance_at_track`, a diagonal approximation: the error's
+    correlation across a swath is not counted, so the bound is optimistic there), and a
+    common offset per sample is a nuisance of variance ``offset_var`` (default unknown:
+    each sample tells the position by its shape alone,
+    :func:`geofix.measurement.sample_information`). A misregistration is a bias no
+    estimator sees and is not in it. With no prior map (the prior is the seabed) and
+    ``offset_var=0`` it is :func:`trial_crlb`.
+
+    Returns
+    -------
+    TrialBound
+        ``trace`` of the bounds, m^2.
+    """
+    prior = getattr(trial, "prior_map", None)
+    prior = grid if prior is None else prior
+    if beam_var is None:
+        beam_var = trial_beam_variance(trial)
+    var = np.asarray(beam_var, float) + map_error_variance_at_track(trial, grid, prior)
+    var = np.maximum(var, 1e-12)
+    gx, gy = beam_gradients(prior, trial.truth, trial.true_heading, trial.offsets, "bilinear")
+    valid = np.isfinite(trial.measured) & np.isfinite(gx) & np.isfinite(gy)
+    gx, gy = np.where(valid, gx, 0.0), np.where(valid, gy, 0.0)
+    info = sample_information(gx, gy, var, valid=valid, offset_var=offset_var)
     rw = _random_walk_traces(trial, info)
     last = trial.leg_slices()[-1]
     batch = float(inverse_trace(info[last].sum(axis=0)))
