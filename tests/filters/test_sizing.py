@@ -128,3 +128,22 @@ def test_a_sitan_bank_linearisation_beyond_the_budget_is_refused_before_it_runs(
     assert traced_peak(refused) < 32 * 2**20
     monkeypatch.setenv("GEOFIX_MEMORY_BUDGET", "4GiB")
     navigate(terrain, "sitan-bank:side=9")  # a smaller bank fits
+
+
+def test_a_resample_or_regrid_beyond_the_budget_is_refused_before_it_runs(monkeypatch):
+    """A campaign filter (no navigator to size it first) is checked at every growth."""
+    from geofix.filters.pf import Pf
+    from geofix.filters.pmf import check_regrid
+
+    monkeypatch.setenv("GEOFIX_MEMORY_BUDGET", "1MiB")
+    with pytest.raises(MemoryBudgetError, match="pmf regrid to 301 x 301 nodes"):
+        check_regrid((301, 301))  # 301^2 x 12 x 8 bytes = 8.7 MB
+    check_regrid((61, 61))  # 0.36 MB fits
+    from geofix.filters.pf import PfState
+
+    rng = np.random.default_rng(0)
+    wide = PfState(rng.normal(0.0, 300.0, (100, 2)), np.full(100, -np.log(100)), cell=10.0)
+    pf = Pf(particles=100, max_particles=50_000, map_model="exact")
+    # a posterior 300 m wide on 10 m cells wants the 50 000 particles: 4.6 MB
+    with pytest.raises(MemoryBudgetError, match="pf resample to 50000 particles"):
+        pf._resample(wide, rng)

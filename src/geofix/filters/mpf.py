@@ -102,6 +102,7 @@ from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.hypothesis_offset import HypothesisOffset
 from geofix.filters.nuisance import check_map_model
 from geofix.filters.pf import (
+    RESAMPLE_COPIES,
     PfState,
     check_field_variance,
     check_progressive,
@@ -114,6 +115,7 @@ from geofix.filters.pf import (
 )
 from geofix.maps.grid import Grid
 from geofix.measurement import predict_measurements
+from geofix.memory import cells_bytes, check_allocation
 from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
 from geofix.problem import MatchProblem
 
@@ -505,6 +507,10 @@ class Mpf(RecursiveFilter):
         sd = np.sqrt(np.clip(np.linalg.eigvalsh(pos_cov), 0.0, None))
         area = float(np.prod(2.0 * self.extent_sigmas * sd))
         count = self.particle_count(area, state.cell)
+        width = 2 + state.linear.shape[1]
+        check_allocation(
+            cells_bytes(count, width, copies=RESAMPLE_COPIES), f"mpf resample to {count} particles"
+        )
         joint = np.hstack([state.dp, state.linear])
         w = state.weights
         mean, cov = weighted_moments(joint, w)

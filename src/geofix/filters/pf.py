@@ -65,6 +65,7 @@ from geofix.measurement import (
     predict_measurements,
     shift_field_variance,
 )
+from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import MatchProblem
 
 
@@ -326,6 +327,9 @@ class Pf(RecursiveFilter):
         sd = np.sqrt(np.clip(np.linalg.eigvalsh(cov), 0.0, None))
         area = float(np.prod(2.0 * self.extent_sigmas * sd))
         count = self.particle_count(area, state.cell)
+        check_allocation(
+            cells_bytes(count, copies=RESAMPLE_COPIES), f"pf resample to {count} particles"
+        )
         index = systematic_resample(state.weights, rng, count)
         particles = state.particles[index]
         if self.roughening > 0:
@@ -342,6 +346,11 @@ class Pf(RecursiveFilter):
             resamples=state.resamples + 1,
             offset=None if state.offset is None else state.offset.take(index),
         )
+
+
+#: Float arrays of one value per particle a resample allocates (indices, positions, the
+#: roughening draws, weights, the offsets): checked against the memory budget before it.
+RESAMPLE_COPIES = 12
 
 
 def linear_weights(log_weight: np.ndarray) -> np.ndarray:

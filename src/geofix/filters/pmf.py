@@ -89,6 +89,7 @@ from geofix.measurement import (
     node_grid_log_likelihood,
     predict_measurements,
 )
+from geofix.memory import cells_bytes, check_allocation
 from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
 from geofix.problem import MatchProblem
 
@@ -522,6 +523,7 @@ class Pmf(RecursiveFilter):
         moved_cov = g @ cov @ g.T + kernel
         moved = replace(state, centre=g @ state.centre + shift, axes=g @ state.axes)
         (centre, axes, spacing), shape = self.ideal_frame(moved, moved_mean, moved_cov)
+        check_regrid(shape)
         g_inv = np.linalg.inv(g)
         pulled = (g_inv @ (centre - shift), g_inv @ axes, spacing)
         fallback = (mean, g_inv @ moved_cov @ g_inv.T)
@@ -559,6 +561,7 @@ class Pmf(RecursiveFilter):
         frame, shape = self.ideal_frame(state, mean, cov + process_var * np.eye(2))
         if not self._off_frame(state, frame, shape):
             return state
+        check_regrid(shape)
         log_weight = ops.resample_grid(state.log_weight, state.frame, frame, (mean, cov), shape)
         offset = state.offset
         if offset is not None:
@@ -645,6 +648,17 @@ class Pmf(RecursiveFilter):
             return True
         half = 0.5 * (np.array(state.shape) - 1)
         return bool(np.max(np.abs(solved[:, 2]) / half) > self.regrid_shift)
+
+
+#: Float arrays of one value per node a regrid allocates (positions, densities, the
+#: convolution's passes, the offsets): checked against the memory budget before it.
+REGRID_COPIES = 12
+
+
+def check_regrid(shape) -> None:
+    """Refuse, against the memory budget, a regrid onto ``shape`` nodes before it runs."""
+    n0, n1 = (int(shape), int(shape)) if np.ndim(shape) == 0 else (int(n) for n in shape)
+    check_allocation(cells_bytes(n0, n1, copies=REGRID_COPIES), f"pmf regrid to {n0} x {n1} nodes")
 
 
 def _singular_values(m: np.ndarray) -> tuple[float, float]:
