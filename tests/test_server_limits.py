@@ -389,3 +389,28 @@ def test_at_the_descriptor_limit_connections_are_refused_in_a_few_log_lines():
     assert proc.returncode == 0 and answered == 60
     assert "Traceback" not in err and len(err.splitlines()) <= 6, err
     assert "max_connections" in err
+
+
+def test_serve_takes_its_limits_on_the_command_line(monkeypatch):
+    """``geofix serve --max-connections ... --workers ...`` reach the server; bad ones refused."""
+    from typer.testing import CliRunner
+
+    import geofix.server
+    from geofix.cli import app
+
+    seen = {}
+
+    def fake_serve(*args, announce=None, **kwargs):
+        seen["limits"] = args[8] if len(args) > 8 else kwargs.get("limits")
+
+    monkeypatch.setattr(geofix.server, "serve", fake_serve)
+    base = ["serve", "--map", "builtin:azores", "--port", "0", "--resample-m", "5000"]
+    flags = ["--max-connections", "7", "--max-line-bytes", "4096", "--workers", "2"]
+    result = CliRunner().invoke(app, [*base, *flags, "--update-timeout-s", "5"])
+    assert result.exit_code == 0, result.output
+    limits = seen["limits"]
+    assert (limits.max_connections, limits.max_line_bytes, limits.workers) == (7, 4096, 2)
+    assert limits.update_timeout_s == 5.0 and limits.max_points == ServerLimits().max_points
+    bad = CliRunner().invoke(app, [*base, "--workers", "0"])
+    assert bad.exit_code == 2 and "workers must be a positive integer" in bad.output
+    assert "Traceback" not in bad.output

@@ -554,15 +554,39 @@ def serve_command(
     ins: Annotated[
         Path | None, typer.Option(help="Scenario YAML whose ins: numbers are the INS model.")
     ] = None,
+    max_connections: Annotated[
+        int | None, typer.Option(help="Connections served at once (default 256).")
+    ] = None,
+    max_line_bytes: Annotated[
+        int | None, typer.Option(help="Longest request line, bytes (default 1 MiB).")
+    ] = None,
+    max_points: Annotated[
+        int | None, typer.Option(help="Most particles or nodes of one connection's filter.")
+    ] = None,
+    workers: Annotated[
+        int | None, typer.Option(help="Threads running updates (default 4).")
+    ] = None,
+    update_timeout_s: Annotated[
+        float | None, typer.Option(help="Time budget of one update, seconds (default 60).")
+    ] = None,
 ) -> None:
     """Serve the navigator over TCP: newline-delimited JSON, one navigator per connection."""
+    given = {
+        "max_connections": max_connections,
+        "max_line_bytes": max_line_bytes,
+        "max_points": max_points,
+        "workers": workers,
+        "update_timeout_s": update_timeout_s,
+    }
 
     def go():
         from geofix.maps.gridding import load_map_error
         from geofix.maps.io import load_grid
         from geofix.replay import check_online_method, check_seed, check_settings, load_ins_model
         from geofix.server import Session, serve
+        from geofix.server_limits import ServerLimits
 
+        limits = ServerLimits(**{k: v for k, v in given.items() if v is not None})
         check_seed(seed)
         check_settings({} if noise_std is None else {"noise_std": noise_std})
         check_online_method(method, "serve")
@@ -581,7 +605,7 @@ def serve_command(
                 "serving", f"{grid!r} with {method} on {bound_host}:{bound_port} (Ctrl-C stops)"
             )
 
-        serve(grid, method, host, port, settings, seed, error, ins_model, announce=announce)
+        serve(grid, method, host, port, settings, seed, error, ins_model, limits, announce=announce)
 
     try:
         _guarded(go, "server stopped")
