@@ -243,14 +243,15 @@ def screen_mission(mission: Mission, kind: str) -> Mission:
 
     A ping is dropped when its time lies more than :data:`MAX_MISSION_SPAN_S` from the
     log's median ping time or its navigation more than :data:`MAX_POSITION_M` from the
-    frame's origin; a beam is dropped when an offset exceeds :data:`MAX_BEAM_OFFSET_M`,
+    frame's origin, or when its time is not after the pings before it (a repeated
+    record); a beam is dropped when an offset exceeds :data:`MAX_BEAM_OFFSET_M`,
     and a value beyond the physical range of the map's ``kind``
     (:data:`geofix.conventions.PHYSICAL_LIMITS`) is blanked (NaN, as a missing beam).
 
     Raises
     ------
     ConfigError
-        Every ping is dropped.
+        Every ping is dropped, or all share one time.
     """
     times = np.asarray(mission.times, dtype=float)
     nav = np.asarray(mission.nav, dtype=float)
@@ -258,6 +259,12 @@ def screen_mission(mission: Mission, kind: str) -> Mission:
     keep &= (np.abs(nav) <= MAX_POSITION_M).all(axis=1)
     if not keep.any():
         raise ConfigError(f"replay: every ping of {mission.name!r} has a time or position off")
+    if mission.n > 1 and np.ptp(times[keep]) == 0:
+        raise ConfigError(
+            f"replay: the {mission.n} pings of {mission.name!r} share one time "
+            f"({times[keep][0]:g} s): a log with no time between its pings cannot be replayed"
+        )
+    keep &= _after_previous(times)
     beams, blanked = _screen_beams(np.asarray(mission.beams, dtype=float), kind)
     dropped = int((~keep).sum())
     poisoned = int((blanked & keep).sum())
@@ -266,6 +273,12 @@ def screen_mission(mission: Mission, kind: str) -> Mission:
     _warn_poisoned(mission, kind, dropped, poisoned)
     screened = replace(mission, beams=beams)
     return screened if keep.all() else _kept(screened, keep)
+
+
+def _after_previous(times: np.ndarray) -> np.ndarray:
+    """``(n,)`` True for a ping later than every ping before it (a repeated time: False)."""
+    latest = np.maximum.accumulate(times)
+    return np.r_[True, times[1:] > latest[:-1]]
 
 
 def _screen_beams(beams: np.ndarray, kind: str) -> tuple[np.ndarray, np.ndarray]:
@@ -287,7 +300,10 @@ def _warn_poisoned(mission: Mission, kind: str, dropped: int, poisoned: int) -> 
     limit = PHYSICAL_LIMITS.get(kind, PHYSICAL_LIMITS["depth"])
     parts = []
     if dropped:
-        parts.append(f"{dropped} pings dropped (time or position out of range)")
+        parts.append(
+            f"{dropped} pings dropped (time or position out of range, or a time not after "
+            "the ping before)"
+        )
     if poisoned:
         parts.append(
             f"{poisoned} pings with beams dropped (a value beyond +-{limit:g} for a {kind} "

@@ -110,3 +110,17 @@ def test_poisoned_log_through_the_command_line(ex1811_map, mission, tmp_path):
     assert outcome.exit_code == 0 and not outcome.traceback, outcome.output
     warned = [line for line in outcome.lines if line.startswith("warning:")]
     assert len(warned) == 1 and "4 pings with beams dropped" in warned[0], outcome.output
+
+
+def test_pings_that_repeat_a_time_are_dropped_and_one_time_for_all_is_refused(mission):
+    times = np.array(mission.times, dtype=float)
+    repeated = times.copy()
+    repeated[[5, 6, 20]] = repeated[[4, 4, 19]]  # logged twice (and once three times)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        screened = screen_mission(replace(mission, times=repeated), "depth")
+    assert screened.n == mission.n - 3 and np.all(np.diff(screened.times) > 0)
+    lines = [str(w.message) for w in caught]
+    assert len(lines) == 1 and "3 pings dropped" in lines[0] and "not after" in lines[0]
+    with pytest.raises(ConfigError, match=r"the 50 pings .* share one time"):
+        screen_mission(replace(mission, times=np.full(mission.n, 7.0)), "depth")
