@@ -300,3 +300,27 @@ def test_killed_grids_leave_a_whole_map_or_none(tmp_path):
             grid = load_grid(out)
             assert grid.dx == 20.0 and load_map_error(out) is not None
             out.unlink()
+
+
+@pytest.mark.slow
+def test_killed_reports_leave_the_old_page_or_a_whole_new_one(tmp_path):
+    scenario = tmp_path / "scen.yaml"
+    scenario.write_text(yaml.safe_dump(small_mission_data("whole-report", trials=2)))
+    folder = tmp_path / "campaign"
+    run = ["run", str(scenario), "-m", "tercom", "--jobs", "1", "--out", str(folder), "--json"]
+    assert run_cli("run", run).exit_code == 0
+    page = folder / "report.html"
+    args = ["report", str(folder)]
+    full = _timed(args)
+    whole = page.read_text()
+    assert whole.rstrip().endswith("</html>")
+    for share in (0.3, 0.6, 0.85, 0.95):
+        page.write_text("<html>the old page</html>")
+        _run_killed(args, share * full)
+        text = page.read_text()
+        # the old page, or a whole new one (closed, about as long as the uninterrupted
+        # run's: a truncated page would be shorter)
+        assert text == "<html>the old page</html>" or (
+            text.rstrip().endswith("</html>") and abs(len(text) - len(whole)) < 0.01 * len(whole)
+        ), (share, len(text), len(whole))
+        assert [p for p in _parts(tmp_path) if not p.name.startswith(".")] == []
