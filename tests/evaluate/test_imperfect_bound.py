@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import small_mission_data
 from geofix.evaluate.crlb import imperfect_map_crlb, map_error_variance_at_track, trial_crlb
 from geofix.measurement import sample_information
 
@@ -34,27 +35,13 @@ def block_mission():
     from geofix.sim.scenario import scenario_from_dict
     from geofix.sim.simulate import prepare_map
 
-    data = {
-        "name": "bound-block",
-        "map": {"path": "builtin:mb_1km"},
-        "track": {
-            "start_cell": [60, 60],
-            "heading_deg": 45,
-            "speed_m_s": 10,
-            "interval_s": 60,
-            "samples": 20,
-        },
-        "sensor": {
-            "type": "multibeam",
-            "beams": 9,
-            "swath_angle_deg": 60,
-            "altitude_m": 2000,
-            "noise_std": 5.0,
-        },
-        "ins": {"initial_error_m": [0, 0], "initial_error_std_m": 500},
-        "trials": 2,
-        "seed": 3,
-    }
+    sensor = {"type": "multibeam", "beams": 9, "swath_angle_deg": 60, "altitude_m": 2000}
+    data = small_mission_data(
+        "bound-block",
+        sensor={**sensor, "noise_std": 5.0},
+        ins={"initial_error_m": [0, 0], "initial_error_std_m": 500},
+        trials=2,
+    )
     plain = scenario_from_dict(data)
     coarse = scenario_from_dict({**data, "seabed": {"cell_factor": 4}})
     return plain, coarse, prepare_map(plain)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from conftest import small_mission_data
 from geofix.filters.base import Observation
 from geofix.filters.hypothesis_offset import HypothesisOffset, mixed_offsets, regridded_offsets
 from geofix.maps.grid import Grid
@@ -75,22 +76,14 @@ def offset_singlebeam(tmp_path_factory):
     from geofix.sim.scenario import scenario_from_dict
     from geofix.sim.simulate import prepare_map
 
-    data = {
-        "name": "offset-singlebeam",
-        "map": {"path": "builtin:mb_1km"},
-        "track": {
-            "start_cell": [60, 60],
-            "heading_deg": 45,
-            "speed_m_s": 10,
-            "interval_s": 60,
-            "samples": 40,
-        },
-        "sensor": {"type": "singlebeam", "noise_std": 2.0},
-        "ins": {"initial_error_m": [0, 0], "initial_error_std_m": 1000, "velocity_error_m_s": 0.05},
-        "seabed": {"offset": 20.0},
-        "trials": 6,
-        "seed": 5,
-    }
+    data = small_mission_data(
+        "offset-singlebeam",
+        track={"samples": 40},
+        ins={"initial_error_m": [0, 0], "initial_error_std_m": 1000, "velocity_error_m_s": 0.05},
+        seabed={"offset": 20.0},
+        trials=6,
+        seed=5,
+    )
     scen = scenario_from_dict(data)
     return scen, prepare_map(scen)
 
