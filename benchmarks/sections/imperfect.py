@@ -81,7 +81,7 @@ def build(quick: bool) -> str:
         ]
         parts.append(md_table(header, table))
     parts.append(_reading())
-    parts.append(_figure(scenario("imperfect_depth"), quick))
+    parts.append(_figure(scenario("imperfect_depth")))
     return "\n".join(parts)
 
 
@@ -90,7 +90,7 @@ FIGURE_ROW = "mix: 50 m cells, 10 m shift, 1 m offset, 1 m correlated"
 FIGURE_METHODS = ("pmf", "pmf:map_model=exact", "mpf", "mpf:map_model=exact")
 
 
-def _figure(base, quick: bool) -> str:
+def _figure(base) -> str:
     """Error against time with the 3-sigma band, one trial of the mixed prior per filter."""
     import matplotlib
 

@@ -1,6 +1,8 @@
 """MGD77T trackline reader: the bundled EW0112 excerpt, one hand-made file per quirk, the
-cruises of the shared data folder (skipped when it is absent), and bad input."""
+five full cruises (from the folder ``GEOFIX_MGD77_DIR`` names; skipped without it), and
+bad input."""
 
+import os
 import warnings
 from datetime import UTC, datetime
 from pathlib import Path
@@ -15,7 +17,8 @@ from geofix.logs.mgd77 import course_over_ground, increasing_subsequence
 
 DATA = Path(__file__).parents[1] / "data" / "mgd77"
 EXCERPT = DATA / "ew0112_excerpt.m77t"
-SHARED = Path(__file__).parents[2].parent / "shared" / "data" / "mgd77"
+#: Folder of the full cruise files, outside the project (they are not bundled).
+FULL_CRUISES = Path(os.environ["GEOFIX_MGD77_DIR"]) if os.environ.get("GEOFIX_MGD77_DIR") else None
 ALL_FIELDS = ("depth", "gravity", "magnetic")
 
 
@@ -300,7 +303,7 @@ def test_bad_arguments_and_missing_files_are_clear_errors(tmp_path):
         read_mission(tmp_path / "none.m77t")
 
 
-# ---------------------------------------------------------------------- shared cruises
+# ---------------------------------------------------------------------- full cruises
 CRUISES = {
     # file: (records, depths, free-air, magnetics kept, navigation, one segment)
     "ew0007.m77t": (49006, 43646, 48986, 32520, "gnss", True),
@@ -311,11 +314,15 @@ CRUISES = {
 }
 
 
-@pytest.mark.skipif(not SHARED.is_dir(), reason="the shared data folder is absent")
+@pytest.mark.skipif(
+    FULL_CRUISES is None or not FULL_CRUISES.is_dir(),
+    reason="GEOFIX_MGD77_DIR does not name a folder of the full cruise files",
+)
 @pytest.mark.parametrize("name", sorted(CRUISES))
 def test_every_shared_cruise_reads_into_sane_missions(name):
     records, depths, gravity, magnetics, era, one_segment = CRUISES[name]
-    missions = read_quiet(SHARED / name, fields=ALL_FIELDS)
+    assert FULL_CRUISES is not None
+    missions = read_quiet(FULL_CRUISES / name, fields=ALL_FIELDS)
     counts = missions[0].meta["file"]
     assert counts["records"] == records
     assert (counts["depth_values"], counts["gravity_values"], counts["magnetic_values"]) == (

@@ -1,10 +1,11 @@
 """Cut the bundled cruise excerpts and ETOPO1 crops from the full files (run once).
 
 The full NOAA MGD77T cruise files and the global ETOPO1 10 arc-minute grid are not part of
-the project; with them in ``../shared/data`` (relative to the project root), this script
-rewrites every file of this folder that PROVENANCE.md lists::
+the project. Given a folder that holds them (``mgd77/<cruise>.m77t`` and
+``global/earth-topography-10arcmin.nc``), this script rewrites every file of this folder
+that PROVENANCE.md lists::
 
-    python benchmarks/data/mgd77/make_data.py [SHARED_DATA_FOLDER]
+    python benchmarks/data/mgd77/make_data.py DATA_FOLDER
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-ROOT = HERE.parents[2]
 
 EXCERPTS = {"ew0007": (44551, 46711), "ew0102": (2843, 5003), "ew0112": (21469, 23630)}
 """Cruise -> first and last 0-based data record of the excerpt (36 h of deep-water transit
@@ -74,15 +74,17 @@ def crop_etopo(source: Path, box: tuple[float, ...], out: Path) -> None:
     crop.to_netcdf(out)
 
 
-def main(shared: Path) -> None:
-    """Write every excerpt and crop of this folder from ``shared``."""
+def main(source: Path) -> None:
+    """Write every excerpt and crop of this folder from the full files in ``source``."""
     for cruise, (first, last) in EXCERPTS.items():
         excerpt = HERE / f"{cruise}_excerpt.m77t"
-        box = cut_excerpt(shared / "mgd77" / f"{cruise}.m77t", first, last, excerpt)
-        topo = shared / "global" / "earth-topography-10arcmin.nc"
+        box = cut_excerpt(source / "mgd77" / f"{cruise}.m77t", first, last, excerpt)
+        topo = source / "global" / "earth-topography-10arcmin.nc"
         crop_etopo(topo, box, HERE / f"etopo1_10min_{cruise}.nc")
         print(cruise, excerpt.stat().st_size, "bytes;", "box", box)
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "data")
+    if len(sys.argv) != 2:
+        sys.exit("usage: python benchmarks/data/mgd77/make_data.py DATA_FOLDER")
+    main(Path(sys.argv[1]))

@@ -89,7 +89,7 @@ class HypothesisOffset:
         mean = float(w @ b)
         return mean, self.var + float(w @ (b - mean) ** 2)
 
-    def updated(self, grid: Grid, positions, obs: Observation) -> HypothesisOffset:
+    def updated(self, grid: Grid, positions, obs: Observation, predicted=None) -> HypothesisOffset:
         """Each hypothesis's offset after the ping (a scalar Kalman step per hypothesis).
 
         ``b_i <- b_i + P T_i / (1 + P S_i)``, ``T_i = sum (y - h_i - b_i) / v``,
@@ -105,15 +105,22 @@ class HypothesisOffset:
             :attr:`mean`.
         obs : Observation
             The ping, with the variance it was weighed with.
+        predicted : numpy.ndarray, optional
+            ``(..., b)`` the ping's every beam read at ``positions``, map units, when the
+            filter has them already (read here otherwise).
         """
         positions = np.asarray(positions, dtype=float)
         count = int(np.prod(positions.shape[:-1]))
         beams = int(np.isfinite(obs.values).sum())
         check_allocation(cells_bytes(count * max(beams, 1), copies=3), "per-hypothesis offsets")
         use = np.isfinite(obs.values)
-        offsets = np.asarray(obs.offsets, dtype=float)[use]
-        flat = positions.reshape(-1, 2)
-        predicted = predict_measurements(grid, flat, obs.heading, offsets).reshape(count, -1)
+        if predicted is None:
+            offsets = np.asarray(obs.offsets, dtype=float)[use]
+            flat = positions.reshape(-1, 2)
+            predicted = predict_measurements(grid, flat, obs.heading, offsets)
+        else:
+            predicted = np.asarray(predicted, dtype=float)[..., use]
+        predicted = predicted.reshape(count, -1)
         var = np.broadcast_to(np.asarray(obs.noise_var, dtype=float), obs.values.shape)[use]
         residual = obs.values[use] - predicted - self.mean.reshape(-1, 1)
         valid = np.isfinite(residual)

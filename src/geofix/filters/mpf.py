@@ -226,12 +226,8 @@ class Mpf(RecursiveFilter):
         ``N(initial_offset, initial_std^2)`` per axis: a filter told the INS's bias, to
         measure against a bound that holds for any estimator on the trials).
     map_model : str
-        What the likelihood assumes of the prior map: ``exact`` (default: the map is the
-        seabed, up to white noise per beam), ``adaptive`` (the map's representation error
-        at its own resolution added per beam, and the noise scaled to the innovations
-        seen) or ``imperfect`` (``adaptive`` and a common offset, measured minus map,
-        estimated with the position); :mod:`geofix.filters.nuisance`,
-        :meth:`geofix.filters.online.NavigatorSettings.for_map_model`.
+        What the likelihood assumes of the prior map: ``imperfect`` (default),
+        ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
     """
 
     name: ClassVar[str] = "mpf"

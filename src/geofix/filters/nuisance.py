@@ -55,7 +55,16 @@ GRAVITY_OFFSET_STD_MGAL = 5.0
 
 
 MAP_MODELS = ("exact", "adaptive", "imperfect")
-"""What a filter's likelihood assumes of the prior map (its ``map_model`` setting)."""
+"""What a filter's likelihood assumes of the prior map (its ``map_model`` setting).
+
+``imperfect`` (the default of ``pmf``, ``pf`` and ``mpf``): the map's representation error
+per beam at the share the innovations support, the noise scaled to the innovations, and a
+common offset (measured minus map) estimated with the position -- per hypothesis for
+pings of fewer than three beams (:mod:`geofix.filters.hypothesis_offset`), the
+navigator's one :class:`CommonOffset` otherwise. ``adaptive``: the same without the
+offset. ``exact``: the map is the seabed up to white noise per beam. The navigator's
+settings per model: :meth:`geofix.filters.online.NavigatorSettings.for_map_model`.
+"""
 
 
 def check_map_model(name: str, value: str) -> None:

@@ -62,9 +62,10 @@ owns everything a navigator adds around it:
   the status is ``lost``;
 - **the INS fallback** -- while lost (from the loss until the filter is ``converged``
   again) the reported estimate is the navigation plus the last good offset (estimate
-  minus navigation at the last converged ping; none before the first), with the last
-  good covariance (the init prior before the first) grown by the process variance of
-  every motion since: what the INS alone tells, never the filter's own collapsed
+  minus navigation at the last converged ping; none before the first, and none after a
+  loss by the NIS window of accepted pings, which says that fix may have been wrong),
+  with the last good covariance (the init prior before the first) grown by the process
+  variance of every motion since: what the INS alone tells, never the filter's own collapsed
   covariance. With ``reinit`` the filter is re-initialised around that estimate with its
   largest 1-sigma (at least the init sigma), and for ``reinit_grace_pings`` pings after a
   re-initialisation no rule can lose it again (a restarted filter is given the pings it
@@ -158,29 +159,33 @@ class NavigatorSettings:
     depth_bias_std : float or None
         Prior 1-sigma of an unknown offset common to every beam of a ping, measured minus
         map (tide, sound speed, map datum, a gravimeter's offset), map units. 0
-        (default): no offset; None: :func:`geofix.filters.nuisance.default_offset_std` of
-        the map (5 m plus 0.2 % of the median depth on a depth map, 5 mGal on a gravity
-        map).
+        (default): no offset for a filter of ``map_model`` ``exact`` or ``adaptive``, the
+        map's default for one of ``imperfect`` (:meth:`for_map_model`); None:
+        :func:`geofix.filters.nuisance.default_offset_std` of the map (5 m plus 0.2 % of
+        the median depth on a depth map, 5 mGal on a gravity map).
         The offset is a random-walk state ``N(b, P)`` estimated with the position
         (:class:`geofix.filters.nuisance.CommonOffset`): every ping's values are taken
         relative to ``b``, each hypothesis's likelihood is marginalised over ``P`` in
         closed form (:func:`geofix.measurement.common_bias_log_likelihood`), and after
         every accepted ping the state is updated from the residuals at the posterior's
-        unscented points. The estimate reports ``b``. Only a grid or particle filter
-        takes it (an EKF such as ``sitan`` carries its own field bias).
+        unscented points; a filter that carries it per hypothesis
+        (``offset_per_hypothesis``) starts its own offsets from ``N(0, std^2)``. The
+        estimate reports ``b``. Only a grid or particle filter takes it (an EKF such as
+        ``sitan`` carries its own field bias).
     depth_bias_walk : float
         Variance the offset gains per second, map units squared per second (default
         1e-3: about 1 m over 15 minutes, a tide's rate).
     representation_error : bool
         Add the prior map's representation error at its own resolution to every beam's
-        variance (default on): :func:`geofix.filters.nuisance.representation_std` read
-        at the beam's footprint from the current estimate, times the beams per
+        variance: :func:`geofix.filters.nuisance.representation_std` read at the beam's
+        footprint from the current estimate, times the share the innovations support
+        (:class:`geofix.filters.nuisance.RepresentationShare`) and the beams per
         independent error across the ping (:func:`geofix.filters.nuisance.correlated_share`).
         Default off; on for a filter whose ``map_model`` is ``adaptive`` or
         ``imperfect`` (:meth:`for_map_model`).
     adaptive_noise : bool
         Estimate a factor on the measurement variance from the innovations
-        (:class:`geofix.filters.nuisance.ResidualScale`, default on): a map coarser than
+        (:class:`geofix.filters.nuisance.ResidualScale`): a map coarser than
         the seabed or wrong in correlated ways, or a noise declared too small, widens the
         likelihood to the residuals actually seen. The factor is never below 1. Default
         off; on for a filter whose ``map_model`` is ``adaptive`` or ``imperfect``
@@ -189,8 +194,8 @@ class NavigatorSettings:
         The residual scale's forgetting factor per ping, in ``(0, 1]`` (0.98: a memory of
         about 50 pings).
     offset_per_hypothesis : bool or None
-        With a common offset, whether a filter that can (``pmf`` on the random walk,
-        ``pf``, ``mpf``) carries it per hypothesis; None (default): for pings of fewer
+        With a common offset, whether a filter that can (``pmf``, ``pf``, ``mpf``)
+        carries it per hypothesis; None (default): for pings of fewer
         than three beams (a profile), and the navigator's one offset for multibeam pings.
     lag_s : float
         The sensor's first-order lag time constant, seconds (a damped gravimeter's

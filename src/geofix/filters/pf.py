@@ -158,12 +158,8 @@ class Pf(RecursiveFilter):
     ambiguity_mass : float
         Weight beyond that radius above which the fix is flagged ambiguous.
     map_model : str
-        What the likelihood assumes of the prior map: ``exact`` (default: the map is the
-        seabed, up to white noise per beam), ``adaptive`` (the map's representation error
-        at its own resolution added per beam, and the noise scaled to the innovations
-        seen) or ``imperfect`` (``adaptive`` and a common offset, measured minus map,
-        estimated with the position); :mod:`geofix.filters.nuisance`,
-        :meth:`geofix.filters.online.NavigatorSettings.for_map_model`.
+        What the likelihood assumes of the prior map: ``imperfect`` (default),
+        ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
 
     References
     ----------

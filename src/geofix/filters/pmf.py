@@ -82,7 +82,6 @@ from geofix.filters.nuisance import check_map_model
 from geofix.filters.pf import check_field_variance, uses_local_field
 from geofix.maps.grid import Grid
 from geofix.measurement import (
-    hypotheses_log_likelihood,
     local_field_log_likelihood,
     log_likelihood,
     node_grid_local_log_likelihood,
@@ -236,12 +235,8 @@ class Pmf(RecursiveFilter):
         Fold in an aiding DVL's velocity when the problem has one (``model=errstate``;
         the random-walk model has no velocity state to aid).
     map_model : str
-        What the likelihood assumes of the prior map: ``exact`` (default: the map is the
-        seabed, up to white noise per beam), ``adaptive`` (the map's representation error
-        at its own resolution added per beam, and the noise scaled to the innovations
-        seen) or ``imperfect`` (``adaptive`` and a common offset, measured minus map,
-        estimated with the position); :mod:`geofix.filters.nuisance`,
-        :meth:`geofix.filters.online.NavigatorSettings.for_map_model`.
+        What the likelihood assumes of the prior map: ``imperfect`` (default),
+        ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
 
     References
     ----------
@@ -353,10 +348,7 @@ class Pmf(RecursiveFilter):
         if self.carries_offset and state.offset is None:
             state = replace(state, offset=HypothesisOffset.start(state.shape, obs))
         if state.offset is not None:
-            offset = state.offset
-            state = self._update_with_offsets(state, obs, grid)
-            xy = ops.node_positions(*state.frame, state.shape)
-            return replace(state, offset=offset.updated(grid, xy, obs))
+            return self._update_with_offsets(state, obs, grid)
         if self.discretisation_noise and uses_local_field(self, state.spacing.max(), state.cell):
             return self._update_local(state, obs, grid)
         if obs.bias_var > 0 or grid.interpolation != "bilinear":
@@ -417,24 +409,31 @@ class Pmf(RecursiveFilter):
         return state.offset.moments(np.exp(state.log_weight))
 
     def _update_with_offsets(self, state: PmfState, obs: Observation, grid: Grid) -> PmfState:
-        """The update marginalised over each node's own offset ``N(b_i, P)``."""
+        """The update marginalised over each node's own offset ``N(b_i, P)``, then the offsets'.
+
+        The nodes' predictions are read once for both (the local field variance reads its
+        own, with the nodes' sides).
+        """
         offset = state.offset
         assert offset is not None
         xy = ops.node_positions(*state.frame, state.shape)
-        args = (obs.heading, obs.offsets, obs.values)
+        predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
         if self.discretisation_noise and uses_local_field(self, state.spacing.max(), state.cell):
             sides = (state.axes * state.spacing).T
-            ll = local_field_log_likelihood(
-                grid, xy, *args, obs.noise_var, sides, offset.var, offset.mean
-            )
+            args = (obs.heading, obs.offsets, obs.values, obs.noise_var, sides)
+            ll = local_field_log_likelihood(grid, xy, *args, offset.var, offset.mean)
         else:
+            shifted = predicted + offset.mean[..., None]
             var = obs.noise_var
             if self.discretisation_noise:
-                predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
-                var = var + node_field_variance(predicted + offset.mean[..., None], obs.values)
-            ll = hypotheses_log_likelihood(grid, xy, *args, var, offset.var, offset.mean)
-        log_weight = ops.normalise(state.log_weight + ll)
-        return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
+                var = var + node_field_variance(shifted, obs.values)
+            ll = log_likelihood(shifted, obs.values, var, offset.var)
+        return replace(
+            state,
+            log_weight=ops.normalise(state.log_weight + ll),
+            evaluations=state.evaluations + ll.size,
+            offset=offset.updated(grid, xy, obs, predicted),
+        )
 
     def _update_reference(self, state: PmfState, obs: Observation, grid: Grid) -> PmfState:
         """The update through the prediction array.
