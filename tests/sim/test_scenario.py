@@ -78,6 +78,28 @@ def test_unknown_key_is_called_unknown(tmp_path):
         load_scenario(path)
 
 
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ("noise_std: 0.3}", "noise_std: 0.3, nois_std: 1}", r"sensor\.nois_std: .*'noise_std'"),
+        ("trials: 4", "trials: 4\ntrails: 4", r"trails: unknown key \(did you mean 'trials'\?\)"),
+        ("trials: 4", "trials: 4\nseabed: {ofset: 2.0}", r"seabed\.ofset: .*'offset'"),
+    ],
+)
+def test_a_misspelt_key_gets_the_closest_known_key(tmp_path, old, new, expected):
+    path = write(tmp_path, VALID.replace(old, new))
+    with pytest.raises(ConfigError, match=expected):
+        load_scenario(path)
+
+
+def test_an_unknown_key_far_from_every_known_key_gets_no_suggestion(tmp_path):
+    path = write(tmp_path, VALID.replace("trials: 4", "trials: 4\nzzzz: 1"))
+    with pytest.raises(ConfigError) as info:
+        load_scenario(path)
+    assert "zzzz: unknown key" in str(info.value)
+    assert "did you mean" not in str(info.value)
+
+
 def test_missing_file_bad_yaml_and_non_mapping(tmp_path):
     with pytest.raises(ConfigError, match="cannot read scenario"):
         load_scenario(tmp_path / "absent.yaml")

@@ -27,6 +27,8 @@ hashed) as before the block existed.
 
 from __future__ import annotations
 
+import difflib
+import typing
 from pathlib import Path
 from typing import Literal
 
@@ -256,11 +258,37 @@ def _yaml_problem(exc: yaml.YAMLError) -> str:
     return f"{where}: not valid YAML: {' '.join(str(what).split())}"
 
 
+def _unknown_key(loc: tuple) -> str:
+    """``"unknown key"``, with the closest known key of its block when one is close."""
+    known = _known_keys(loc[:-1])
+    close = difflib.get_close_matches(str(loc[-1]), known, n=1, cutoff=0.6)
+    return f"unknown key (did you mean {close[0]!r}?)" if close else "unknown key"
+
+
+def _known_keys(path: tuple) -> list[str]:
+    """The keys a scenario accepts in the block at ``path`` (``()``: the top level)."""
+    model: object = Scenario
+    for part in path:
+        fields = getattr(model, "model_fields", {})
+        if part not in fields:
+            return []
+        model = _model_of(fields[part].annotation)
+    return [k for k, f in getattr(model, "model_fields", {}).items() if not f.exclude]
+
+
+def _model_of(annotation) -> object:
+    """The pydantic model inside ``annotation`` (``X | None`` -> ``X``), else the annotation."""
+    for arg in typing.get_args(annotation) or (annotation,):
+        if hasattr(arg, "model_fields"):
+            return arg
+    return annotation
+
+
 def _describe(exc: ValidationError) -> str:
     parts = []
     for err in exc.errors():
         loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+        msg = _unknown_key(err["loc"]) if err["type"] == "extra_forbidden" else err["msg"]
         if err["type"] == "finite_number":
             msg = f"must be a finite number, got {err.get('input')!r}"
         parts.append(f"{loc}: {' '.join(str(msg).split())}")
