@@ -66,7 +66,21 @@ def _version(show: bool) -> None:
         raise typer.Exit()
 
 
-_out = Console(width=None if sys.stdout.isatty() else 160)
+#: Width of the printed tables when stdout is not a terminal and ``COLUMNS`` is unset.
+PIPED_WIDTH = 80
+
+
+def _stdout_width() -> int | None:
+    """The width of stdout's tables: the terminal's, else ``COLUMNS``, else 80 characters.
+
+    Rich would otherwise take the width of stderr's or stdin's terminal for a piped stdout.
+    """
+    if sys.stdout.isatty() or os.environ.get("COLUMNS", "").isdigit():
+        return None  # rich reads the terminal or COLUMNS
+    return PIPED_WIDTH
+
+
+_out = Console(width=_stdout_width())
 _err = Console(stderr=True)
 
 
@@ -262,7 +276,12 @@ def methods(
     ] = None,
 ) -> None:
     """List the methods; with a NAME, every setting of that method with its default."""
-    from geofix.methods import available_methods, method_settings, method_summary
+    from geofix.methods import (
+        available_methods,
+        method_settings,
+        method_summary,
+        unknown_method_message,
+    )
     from geofix.methods import setting_descriptions as describe
 
     known = available_methods()
@@ -276,7 +295,7 @@ def methods(
         _out.print(table)
         return
     if name not in known:
-        _fail(f"unknown method {name!r} (known: {', '.join(known)})")
+        _fail(unknown_method_message(name, known))
     cls = known[name]
     table = Table(title=f"{name}: {method_summary(cls)}")
     for col in ("setting", "default", "type", "what it does"):
@@ -302,7 +321,7 @@ def maps() -> None:
 
     table = Table(title="bundled maps")
     for col in ("name", "what", "source, licence"):
-        table.add_column(col)
+        table.add_column(col, overflow="fold")
     for name, info in bundled_maps().items():
         table.add_row(name, info.description, f"{info.source}; {info.licence}")
     _out.print(table)

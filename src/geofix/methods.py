@@ -10,6 +10,7 @@ optionally overrides settings; values are converted to the type of the default.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import inspect
 import math
 import re
@@ -51,6 +52,25 @@ BUILTIN_METHODS: tuple[type[Matcher], ...] = (
 )
 
 _REGISTRY: dict[str, type[Matcher]] = {cls.name: cls for cls in BUILTIN_METHODS}
+
+#: What each shipped method is, in one plain line (``geofix methods`` shows it). A method
+#: registered with :func:`register` is described by its docstring's first line instead.
+METHOD_DESCRIPTIONS: dict[str, str] = {
+    "tercom": "TERCOM: exhaustive search over rigid shifts of the track (MSD, MAD, COR).",
+    "iccp": "ICCP: iterative closest contour point on the nadir beam's depth profile.",
+    "iccp-multipath": "Multipath ICCP: three beam paths fitted with one rigid transform.",
+    "ga-sca": "Genetic algorithm search for the track's shift, sine-cosine refinement.",
+    "icp": "ICP: point-to-point fit of the multibeam cloud onto the map's grid points.",
+    "tercom-icp": "TERCOM coarse fix over the 6-sigma window, refined by ICP.",
+    "abc-mhd": "Artificial bee colony search with mean-Hausdorff screening.",
+    "ioap": "IOAP: ring searches for the track's start and end points, scored by MSD.",
+    "sitan": "SITAN: one extended Kalman filter on the locally linearised terrain.",
+    "sitan-bank": "Parallel SITAN: a bank of N x N Kalman filters, the best one selected.",
+    "pmf": "Point-mass filter: the Bayes recursion on a grid that follows the posterior.",
+    "pf": "Bootstrap particle filter over the horizontal position.",
+    "mpf": "Marginalised particle filter: particles on position, Kalman on INS errors.",
+    "ins": "The free INS: the indicated track, never corrected (the yardstick).",
+}
 
 
 def register(cls: _M) -> _M:
@@ -109,8 +129,30 @@ def _field_default(f: dataclasses.Field[typing.Any]) -> object:
 
 
 def method_summary(cls: type) -> str:
-    """The first line of a method class's docstring (what it is, in a few words)."""
-    return (cls.__doc__ or "").strip().splitlines()[0].strip() if cls.__doc__ else ""
+    """What a method is, in one plain-text line.
+
+    Parameters
+    ----------
+    cls : type
+        A method class.
+
+    Returns
+    -------
+    str
+        The line of :data:`METHOD_DESCRIPTIONS` for a shipped method; for another, the
+        first line of its docstring without RST markup (``""`` without a docstring).
+
+    Examples
+    --------
+    >>> import geofix
+    >>> method_summary(geofix.Pf)
+    'Bootstrap particle filter over the horizontal position.'
+    """
+    name = getattr(cls, "name", None)
+    if name in METHOD_DESCRIPTIONS and _REGISTRY.get(name) is cls:
+        return METHOD_DESCRIPTIONS[name]
+    lines = inspect.cleandoc(cls.__doc__ or "").splitlines()
+    return _plain(lines[0].strip()) if lines else ""
 
 
 def setting_descriptions(cls: type) -> dict[str, str]:
@@ -137,35 +179,56 @@ def setting_descriptions(cls: type) -> dict[str, str]:
     documented: dict[str, str] = {}
     for klass in reversed(cls.__mro__):
         documented.update(_parameter_blocks(klass.__doc__ or ""))
-    return {name: _first_sentence(documented.get(name, "")) for name, *_ in method_settings(cls)}
+    return {name: documented.get(name, "") for name, *_ in method_settings(cls)}
 
 
 _SECTIONS = {"Returns", "Raises", "Notes", "References", "Examples", "Attributes", "See Also"}
+_ELLIPSIS = "..."
 
 
 def _parameter_blocks(doc: str) -> dict[str, str]:
-    """``{name: description}`` from a numpy-style docstring's Parameters section."""
+    """``{name: one-sentence description}`` from a numpy-style docstring's Parameters.
+
+    An entry may name several settings (``tolerance_m, tolerance_rad : float``); an entry
+    whose description goes on from the one before (``... and rotates less than this``) is
+    joined to that one's sentence, so it reads on its own.
+    """
     lines = inspect.cleandoc(doc).splitlines()
     if "Parameters" not in lines:
         return {}
-    blocks: dict[str, str] = {}
-    names: list[str] = []
+    entries: list[tuple[list[str], str]] = []
     for line in lines[lines.index("Parameters") + 2 :]:
         if line.strip() in _SECTIONS:
             break
         if line and not line.startswith(" "):
-            names = [n.strip() for n in line.split(" : ")[0].split(",")]
-            blocks.update(dict.fromkeys(names, ""))
-        elif line.strip():
-            for n in names:
-                blocks[n] = f"{blocks[n]} {line.strip()}".strip()
+            names = [n.strip() for n in line.split(":")[0].split(",") if n.strip()]
+            entries.append((names, ""))
+        elif line.strip() and entries:
+            names, text = entries[-1]
+            entries[-1] = (names, f"{text} {line.strip()}".strip())
+    blocks: dict[str, str] = {}
+    previous = ""
+    for names, text in entries:
+        goes_on = text.startswith(_ELLIPSIS) and bool(previous)
+        sentence = _first_sentence(text.removeprefix(_ELLIPSIS).strip() if goes_on else text)
+        if goes_on:
+            sentence = f"{previous}, {sentence}"
+        previous = sentence.removesuffix(_ELLIPSIS).rstrip(" .,;")
+        if sentence.endswith(_ELLIPSIS):
+            sentence = f"{previous}."
+        blocks.update(dict.fromkeys(names, sentence))
     return blocks
+
+
+def _plain(text: str) -> str:
+    """``text`` without RST roles (``:class:`~a.B```) and literals (````x````)."""
+    text = re.sub(r":\w+:`~?([^`]+)`", r"\1", text)
+    return re.sub(r"``([^`]*)``", r"\1", text)
 
 
 def _first_sentence(text: str) -> str:
     """The text up to its first full stop, without RST roles and literals."""
-    text = re.sub(r":\w+:`~?([^`]+)`", r"\1", text)
-    text = re.sub(r"``([^`]*)``", r"\1", text)
+    text = _plain(text)
     match = re.match(r"(.+?\.)(\s|$)", text)
     return match.group(1) if match else text
 
@@ -199,8 +262,7 @@ def parse_method_spec(spec: str):
     name, _, rest = spec.strip().partition(":")
     methods = available_methods()
     if name not in methods:
-        known = ", ".join(methods) or "none"
-        raise ConfigError(f"unknown method {name!r} (known: {known})")
+        raise ConfigError(unknown_method_message(name, methods))
     cls = methods[name]
     settings = {s[0]: s for s in method_settings(cls)}
     kwargs = {}
@@ -209,8 +271,8 @@ def parse_method_spec(spec: str):
         key = key.strip()
         if key not in settings:
             raise ConfigError(
-                f"method {name!r}: unknown setting {key!r} in {spec!r} "
-                f"(settings: {', '.join(settings)})"
+                f"method {name!r}: unknown setting {key!r} in {spec!r}"
+                f"{did_you_mean(key, settings)} (settings: {', '.join(settings)})"
             )
         if not eq:
             raise ConfigError(
@@ -224,6 +286,52 @@ def parse_method_spec(spec: str):
         return cls(**kwargs)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"method {spec!r}: {exc}") from None
+
+
+def did_you_mean(word: str, known: typing.Iterable[str]) -> str:
+    """``"; did you mean 'pmf'?"`` for the known name closest to ``word``, else ``""``.
+
+    Examples
+    --------
+    >>> did_you_mean("pfm", ["pmf", "pf", "tercom"])
+    "; did you mean 'pmf'?"
+    >>> did_you_mean("zzz", ["pmf"])
+    ''
+    """
+    by_lower = {k.lower(): k for k in known}
+    word = word.lower()
+    close = difflib.get_close_matches(word, list(by_lower), n=3, cutoff=0.6)
+    if not close:
+        return ""
+    # a swapped pair of letters ("pfm") is one edit, as close as a dropped letter ("pf")
+    best = min(close, key=lambda k: (_edit_distance(word, k), abs(len(k) - len(word))))
+    return f"; did you mean {by_lower[best]!r}?"
+
+
+def _edit_distance(a: str, b: str) -> int:
+    """Edits (insert, delete, replace, swap two neighbours) turning ``a`` into ``b``."""
+    rows = [list(range(len(b) + 1))]
+    for i, ca in enumerate(a, 1):
+        row = [i]
+        for j, cb in enumerate(b, 1):
+            row.append(min(rows[-1][j] + 1, row[j - 1] + 1, rows[-1][j - 1] + (ca != cb)))
+            if i > 1 and j > 1 and ca == b[j - 2] and a[i - 2] == cb:
+                row[j] = min(row[j], rows[-2][j - 2] + 1)
+        rows.append(row)
+    return rows[-1][-1]
+
+
+def unknown_method_message(name: str, known: typing.Iterable[str]) -> str:
+    """The error line of an unknown method name: the closest name, then every name.
+
+    Examples
+    --------
+    >>> unknown_method_message("pfm", ["pf", "pmf"])
+    "unknown method 'pfm'; did you mean 'pmf'? (known: pf, pmf)"
+    """
+    names = list(known)
+    listing = ", ".join(names) or "none"
+    return f"unknown method {name!r}{did_you_mean(name, names)} (known: {listing})"
 
 
 def _convert(raw: str, default: object, where: str):
