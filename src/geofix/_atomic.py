@@ -70,7 +70,7 @@ def check_target(path: str | Path) -> Path:
     return path
 
 
-def part_name(path: Path) -> Path:
+def _part_name(path: Path) -> Path:
     """A fresh hidden temporary name beside ``path`` (same folder, so a rename is atomic)."""
     return path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}{PART_SUFFIX}")
 
@@ -101,7 +101,7 @@ def replacing(path: str | Path) -> Iterator[Path]:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise output_error(path, exc) from None
-    part = part_name(path)
+    part = _part_name(path)
     try:
         yield part
         _sync(part)

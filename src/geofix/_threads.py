@@ -23,7 +23,7 @@ _serial_depth = 0
 _serial_process = False
 
 
-def serial_kernels() -> bool:
+def _serial_kernels() -> bool:
     """True when compiled kernels should run on the calling thread only (see module)."""
     return _serial_process or _serial_depth > 0 or numba.config.NUMBA_NUM_THREADS == 1  # type: ignore[attr-defined]
 
@@ -82,4 +82,4 @@ def twins(py_func: Callable, signatures=None, **flags) -> tuple[Callable, Callab
 
 def pick(kernels: tuple[Callable, Callable]) -> Callable:
     """The twin of ``kernels`` (from :func:`twins`) this process should run now."""
-    return kernels[1] if serial_kernels() else kernels[0]
+    return kernels[1] if _serial_kernels() else kernels[0]

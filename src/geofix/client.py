@@ -110,7 +110,31 @@ class Client:
         return reply
 
     def init(self, t: float, x: float, y: float, sigma_m: float, heading_deg=None, **kw):
-        """``init``: start the navigator at ``(x, y)`` metres with a prior ``sigma_m``."""
+        """``init``: start the navigator at ``(x, y)`` metres with a prior ``sigma_m``.
+
+        Parameters
+        ----------
+        t : float
+            Time, seconds.
+        x, y : float
+            Initial position east / north in the map's frame, metres.
+        sigma_m : float
+            1-sigma of the initial position, metres.
+        heading_deg : float, optional
+            Heading, degrees clockwise from north (the server assumes 0 without it).
+        check : bool, optional
+            Keyword; ``False`` returns an ``"ok": false`` reply instead of raising.
+
+        Returns
+        -------
+        dict
+            The reply: the estimate after the request.
+
+        Raises
+        ------
+        ServerError
+            The server refused the request (with ``check``) or the connection failed.
+        """
         msg = {"type": "init", "t": float(t), "x": float(x), "y": float(y)}
         msg["sigma_m"] = float(sigma_m)
         if heading_deg is not None:
@@ -118,7 +142,29 @@ class Client:
         return self.request(msg, **kw)
 
     def nav(self, t: float, x: float, y: float, heading_deg: float, **kw) -> dict:
-        """``nav``: the INS-indicated position (metres, the map's frame) and heading."""
+        """``nav``: the INS-indicated position (metres, the map's frame) and heading.
+
+        Parameters
+        ----------
+        t : float
+            Time, seconds.
+        x, y : float
+            INS-indicated position east / north in the map's frame, metres.
+        heading_deg : float
+            Heading, degrees clockwise from north.
+        check : bool, optional
+            Keyword; ``False`` returns an ``"ok": false`` reply instead of raising.
+
+        Returns
+        -------
+        dict
+            The reply: the estimate after the request.
+
+        Raises
+        ------
+        ServerError
+            The server refused the request (with ``check``) or the connection failed.
+        """
         msg = {"type": "nav", "t": float(t), "x": float(x), "y": float(y)}
         msg["heading_deg"] = float(heading_deg)
         return self.request(msg, **kw)
@@ -126,8 +172,30 @@ class Client:
     def ping(self, t: float, beams, roll_deg=None, pitch_deg=None, **kw) -> dict:
         """``ping``: level beams ``(b, 3)``, or body-frame ``(b, 4)`` with the attitude.
 
-        Rows are ``(across_m, along_m, value)`` or ``(across_m, along_m, down_m, value)``;
-        ``roll_deg`` / ``pitch_deg`` in degrees; NaN values go as null.
+        Parameters
+        ----------
+        t : float
+            Time, seconds.
+        beams : array_like
+            ``(b, 3)`` rows ``(across_m, along_m, value)`` or ``(b, 4)`` rows
+            ``(across_m, along_m, down_m, value)``: offsets in metres, values in map
+            units; a NaN value (missing beam) goes as null.
+        roll_deg, pitch_deg : float, optional
+            Vehicle attitude, degrees.
+        check : bool, optional
+            Keyword; ``False`` returns an ``"ok": false`` reply instead of raising.
+
+        Returns
+        -------
+        dict
+            The reply: the estimate after the ping.
+
+        Raises
+        ------
+        ValueError
+            Beams of another shape, or a non-finite time, offset or attitude.
+        ServerError
+            The server refused the request (with ``check``) or the connection failed.
         """
         message = ping_message(t, beams, roll_deg, pitch_deg, as_array=True)
         # orjson writes the array itself (NaN as null), ten times faster than json on
@@ -142,8 +210,24 @@ class Client:
     def config(self, method: str | None = None, ins=None, dvl=None, **kw) -> dict:
         """``config``: this connection's own method and INS model (a new navigator).
 
-        ``ins`` / ``dvl`` are a scenario's ``ins:`` / ``dvl:`` blocks as dicts; keys left
-        out keep the server's.
+        Parameters
+        ----------
+        method : str, optional
+            Method specification (e.g. ``"mpf:particles=2000"``); the server's without it.
+        ins, dvl : dict, optional
+            A scenario's ``ins:`` / ``dvl:`` blocks; keys left out keep the server's.
+        check : bool, optional
+            Keyword; ``False`` returns an ``"ok": false`` reply instead of raising.
+
+        Returns
+        -------
+        dict
+            The reply, ``{"ok": true, "type": "config", "method": spec}``.
+
+        Raises
+        ------
+        ServerError
+            The server refused the request (with ``check``) or the connection failed.
         """
         message: dict = {"type": "config"}
         for key, value in (("method", method), ("ins", ins), ("dvl", dvl)):
@@ -155,8 +239,24 @@ class Client:
 def ping_message(t: float, beams, roll_deg=None, pitch_deg=None, as_array=False) -> dict:
     """The ``ping`` request for beams ``(b, 3)`` or ``(b, 4)`` (NaN values become null).
 
-    With ``as_array`` the beams stay a C-contiguous float64 array (NaN values kept) for
-    ``orjson.dumps(..., option=orjson.OPT_SERIALIZE_NUMPY)``, which writes NaN as null.
+    Parameters
+    ----------
+    t : float
+        Time, seconds.
+    beams : array_like
+        ``(b, 3)`` rows ``(across_m, along_m, value)`` or ``(b, 4)`` rows
+        ``(across_m, along_m, down_m, value)``: offsets in metres, values in map units.
+    roll_deg, pitch_deg : float, optional
+        Vehicle attitude, degrees (left out of the request when None).
+    as_array : bool
+        Keep the beams a C-contiguous float64 array (NaN values kept) for
+        ``orjson.dumps(..., option=orjson.OPT_SERIALIZE_NUMPY)``, which writes NaN as
+        null; otherwise nested lists with NaN values as None.
+
+    Returns
+    -------
+    dict
+        The request object.
 
     Raises
     ------

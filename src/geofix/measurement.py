@@ -111,8 +111,21 @@ def predict_track(grid: Grid, track, heading, offsets, method: str = "bilinear")
 def residuals(grid: Grid, track, heading, offsets, measured, method: str = "bilinear"):
     """Predicted minus measured values along one or many tracks.
 
-    Parameters are those of :func:`predict_track`, plus ``measured`` ``(n, b)`` (map
-    units, NaN = missing), broadcast against the prediction.
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    track : array_like
+        ``(..., n, 2)`` vehicle positions, metres.
+    heading : array_like
+        ``(..., n)`` headings, radians clockwise from north (broadcast against ``track``).
+    offsets : array_like
+        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres.
+    measured : array_like
+        ``(n, b)`` measured values, map units (NaN = missing), broadcast against the
+        prediction.
+    method : {"bilinear", "nearest"}
+        The map read (:meth:`Grid.sample`).
 
     Returns
     -------
@@ -319,6 +332,24 @@ def node_grid_local_log_likelihood(
     cell (the reads of :func:`local_field_reference` at the moved nodes, to the rounding
     of the node positions). Bilinear map reads; no common offset.
 
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    frame : tuple
+        ``(centre (2,), axes (2, 2), u (N0,), v (N1,))``: the grid's middle, its axes as
+        columns and the node coordinates along them, metres.
+    spacing : array_like
+        ``(2,)`` node step along each axis, metres: the sides of a node's cell.
+    heading : float
+        Heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets, metres.
+    measured : numpy.ndarray
+        ``(b,)`` measured values (NaN = missing beam).
+    noise_var : float or numpy.ndarray
+        Measurement variance, map units squared, scalar or ``(b,)`` (positive).
+
     Returns
     -------
     numpy.ndarray
@@ -356,8 +387,34 @@ def local_field_reference(
     The reads at the hypotheses and at the hypotheses moved by each side
     (:func:`predict_measurements`), then the Gaussian of covariance ``R + Z Z^T`` per
     hypothesis, ``Z = [D / sqrt(12), sqrt(bias_var) 1]`` (without the last column when
-    ``bias_var`` is 0), by a small solve per hypothesis. Arguments as
-    :func:`local_field_log_likelihood`.
+    ``bias_var`` is 0), by a small solve per hypothesis.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map (any ``interpolation``).
+    positions : numpy.ndarray
+        ``(..., 2)`` hypothesised vehicle positions, metres.
+    heading : float
+        Heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets, metres.
+    measured : numpy.ndarray
+        ``(b,)`` measured values (NaN = missing beam).
+    noise_var : float or numpy.ndarray
+        Measurement variance, map units squared, scalar or ``(b,)`` (positive).
+    sides : numpy.ndarray
+        ``(2, 2)`` the two sides of a hypothesis's share as rows ``(dx, dy)``, metres.
+    bias_var : float
+        Variance of an offset common to every beam, map units squared (0: none).
+    shift : numpy.ndarray, optional
+        ``(...)`` each hypothesis's own offset subtracted from its residuals, map units.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(...)`` log-likelihoods up to a constant (off-map beams cost
+        :data:`OFF_MAP_LOG_LIKELIHOOD` each).
     """
     positions = np.asarray(positions, dtype=float)
     sides = np.asarray(sides, dtype=float).reshape(2, 2)
@@ -399,6 +456,26 @@ def shift_field_variance(
     compiled pass, with no ``(positions, beams)`` array; other reads through
     :func:`predict_measurements`. The sums are plain running sums (numpy's ``mean``
     pairs its terms: the two differ in the last digits).
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    positions : numpy.ndarray
+        ``(..., 2)`` vehicle positions, metres.
+    heading : float
+        Heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets, metres.
+    measured : numpy.ndarray
+        ``(b,)`` measured values; only the beams with a finite value count.
+    spacing : float
+        Side of the square, metres.
+
+    Returns
+    -------
+    float
+        The field variance, map units squared.
     """
     positions = np.asarray(positions, dtype=float).reshape(-1, 2)
     offsets = np.asarray(offsets, dtype=float)[np.isfinite(np.asarray(measured, dtype=float))]
@@ -592,6 +669,24 @@ def linearise(grid: Grid, position, heading: float, offsets, half_width_m: float
 
     ``position`` is ``(2,)`` (one estimate: arrays ``(b,)`` / ``(b, 2)``) or ``(..., 2)``
     (several estimates at once, same heading and patch: arrays ``(..., b)`` / ``(..., b, 2)``).
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    position : array_like
+        ``(2,)`` or ``(..., 2)`` estimated vehicle position(s), metres.
+    heading : float
+        Heading, radians clockwise from north.
+    offsets : array_like
+        ``(b, 2)`` body-frame beam offsets, metres.
+    half_width_m : float
+        Half-width of the fitted patch, metres (raised to one cell at least).
+
+    Returns
+    -------
+    Linearisation
+        Predicted values, slopes (map units per metre) and fit variances per beam.
     """
     pos = np.asarray(position, dtype=float)[..., None, :]
     x, y = footprint_xy(pos, np.full(pos.shape[:-1], heading), np.asarray(offsets, dtype=float))

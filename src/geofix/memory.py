@@ -44,7 +44,7 @@ _UNITS = {
 _SIZE = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:e[+-]?[0-9]+)?)\s*([a-z%]*)\s*$", re.IGNORECASE)
 
 
-def physical_ram_bytes() -> int:
+def _physical_ram_bytes() -> int:
     """The machine's physical RAM, bytes (8 GiB when the system does not say)."""
     try:
         return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
@@ -67,7 +67,7 @@ def parse_size(text: str) -> int:
             f"memory budget {text!r} is not a size (examples: 2GiB, 500MB, 1.5e9, 25%)"
         )
     value = float(match.group(1))
-    size = value / 100 * physical_ram_bytes() if unit == "%" else value * _UNITS[unit]
+    size = value / 100 * _physical_ram_bytes() if unit == "%" else value * _UNITS[unit]
     if not size >= 1:
         raise MemoryBudgetError(f"memory budget {text!r} must be positive")
     if not size < float("inf"):
@@ -80,7 +80,7 @@ def memory_budget_bytes() -> int:
     text = os.environ.get(ENV_VAR, "").strip()
     if text:
         return parse_size(text)
-    return int(DEFAULT_FRACTION * physical_ram_bytes())
+    return int(DEFAULT_FRACTION * _physical_ram_bytes())
 
 
 def format_bytes(n: float) -> str:
@@ -122,7 +122,22 @@ def check_allocation(nbytes: float, what: str) -> None:
 
 
 def cells_bytes(*dims: float, copies: float = 1.0, itemsize: int = 8) -> float:
-    """Bytes of ``copies`` float arrays of shape ``dims`` (as a float: never overflows)."""
+    """Bytes of ``copies`` float arrays of shape ``dims`` (as a float: never overflows).
+
+    Parameters
+    ----------
+    *dims : float
+        The array's shape (a negative size counts 0).
+    copies : float
+        Number of arrays of that shape.
+    itemsize : int
+        Bytes per element.
+
+    Returns
+    -------
+    float
+        ``copies * itemsize * prod(dims)``, bytes.
+    """
     total = float(copies) * itemsize
     for d in dims:
         total *= max(float(d), 0.0)

@@ -159,6 +159,15 @@ class MatchProblem:
 def check_beam_noise_std(beam_noise_std, beams: int, who: str) -> None:
     """Raise unless ``beam_noise_std`` is ``(beams,)`` finite values >= 0 (map units).
 
+    Parameters
+    ----------
+    beam_noise_std : array_like
+        Per-beam measurement noise standard deviations, map units.
+    beams : int
+        Expected number of beams.
+    who : str
+        Name of the caller, first word of the error message.
+
     Raises
     ------
     ConfigError
@@ -174,8 +183,20 @@ def check_beam_noise_std(beam_noise_std, beams: int, who: str) -> None:
 def footprint_xy(track: np.ndarray, heading: np.ndarray, offsets: np.ndarray) -> tuple:
     """Beam positions ``(x, y)`` of shape ``(..., n, b)`` for vehicle ``track`` ``(..., n, 2)``.
 
-    ``heading`` is ``(..., n)`` radians clockwise from north; ``offsets`` ``(b, 2)`` are
-    body-frame ``(across, along)`` metres (across positive to starboard).
+    Parameters
+    ----------
+    track : numpy.ndarray
+        ``(..., n, 2)`` vehicle positions ``(x east, y north)``, metres.
+    heading : numpy.ndarray
+        ``(..., n)`` headings, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres (across positive to
+        starboard).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(x, y)`` each of shape ``(..., n, b)``, metres.
     """
     track = np.asarray(track, dtype=float)
     s = np.sin(heading)[..., None]

@@ -127,6 +127,17 @@ class MemoryLedger:
     def reserve(self, key: int, state: float, update: float, what: str) -> None:
         """Hold ``state`` + ``update`` bytes for ``key`` (replacing what it held).
 
+        Parameters
+        ----------
+        key : int
+            The holder (a connection's id).
+        state : float
+            Bytes held for the holder's life (its filter's state and line buffer).
+        update : float
+            Bytes of one update's temporaries (counted among the ``workers`` largest).
+        what : str
+            What the memory is for, named in the error message.
+
         Raises
         ------
         MemoryBudgetError

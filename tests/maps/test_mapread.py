@@ -309,7 +309,7 @@ def test_bicubic_gradient_of_a_quadratic_is_exact_a_cubic_is_not(rng):
 
 
 def test_bicubic_gradient_on_a_narrow_grid_is_the_bilinear_one(rng):
-    values = rng.normal(0.0, 3.0, (2, 9))  # two rows: read bilinear, as bicubic_at does
+    values = rng.normal(0.0, 3.0, (2, 9))  # two rows: read bilinear, as _bicubic_at does
     x, y = rng.uniform(0.0, 8.0, 50), rng.uniform(0.0, 1.0, 50)
     cubic = mapread.gradient_xy(values, 0.0, 0.0, 1.0, 1.0, x, y, method="bicubic")
     linear = mapread.gradient_xy(values, 0.0, 0.0, 1.0, 1.0, x, y)

@@ -10,7 +10,7 @@ from geofix.errors import ConfigError, MapError
 from geofix.maps.gridding import GriddedMap, grid_soundings, save_gridded
 
 
-def read_soundings(path: str | Path) -> tuple[np.ndarray, str | None, str]:
+def _read_soundings(path: str | Path) -> tuple[np.ndarray, str | None, str]:
     """Georeferenced soundings ``(m, 3)`` ``(x, y, value)``, their frame and a name.
 
     Parameters
@@ -68,8 +68,33 @@ def grid_log(
     :func:`geofix.maps.load_grid`) with ``z_std`` and ``z_count`` beside it; its
     ``meta["projection"]`` is the soundings' frame, so a replay of the same log lands in
     the same frame.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        Any log :func:`geofix.logs.read_mission` reads, or one CSV / Parquet table of
+        georeferenced soundings (columns ``x, y`` in metres or ``lon, lat`` in degrees,
+        and ``value`` in map units or ``depth_m`` positive down).
+    cell_m : float
+        Cell size, metres.
+    out : str or pathlib.Path
+        The netCDF file to write; its folder is created.
+    max_gap_cells : float
+        Cells farther than this (in cells) from any cell with soundings stay NaN.
+
+    Returns
+    -------
+    tuple of (GriddedMap, pathlib.Path)
+        The gridded map and the path written.
+
+    Raises
+    ------
+    ConfigError
+        An unreadable input or an output folder that cannot be created.
+    MapError
+        Soundings that cannot be gridded (the message names ``path``).
     """
-    pts, frame, name = read_soundings(path)
+    pts, frame, name = _read_soundings(path)
     try:
         Path(out).parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -116,6 +116,25 @@ def write_tables(mission: Mission, folder: str | Path, fmt: str = "csv") -> Path
     """Write a mission as ``nav`` and ``soundings`` tables (metric ``x``/``y``).
 
     Times are written as ``start_utc + times`` when the mission has a start time.
+
+    Parameters
+    ----------
+    mission : Mission
+        The mission to write; beams with a non-finite offset or value are left out.
+    folder : str or pathlib.Path
+        Folder of the two tables (created); ``nav.<fmt>`` and ``soundings.<fmt>``.
+    fmt : {"csv", "parquet"}
+        Table format.
+
+    Returns
+    -------
+    pathlib.Path
+        ``folder``.
+
+    Raises
+    ------
+    ConfigError
+        An unknown ``fmt``.
     """
     import pandas as pd
 

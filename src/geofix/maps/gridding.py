@@ -60,7 +60,7 @@ class GriddedMap:
 
         None when no cell holds two soundings (``std`` all NaN).
         """
-        return error_layer_grid(self.grid, self.std)
+        return _error_layer_grid(self.grid, self.std)
 
 
 def grid_soundings(
@@ -215,7 +215,7 @@ def _interpolation_error(exc: Exception) -> str:
     return f"gridding: cannot interpolate the cell means: {first[:160]}"
 
 
-def error_layer_grid(grid: Grid, std: np.ndarray) -> Grid | None:
+def _error_layer_grid(grid: Grid, std: np.ndarray) -> Grid | None:
     """The per-cell standard deviation on the geometry of ``grid``; None if all NaN."""
     std = np.asarray(std, dtype=float)
     if std.shape != grid.shape or not np.isfinite(std).any():

@@ -31,9 +31,9 @@ map is interpolated one way everywhere. Conventions (those of ``Grid.sample``):
   ``(3 t^2 - 2 t) / 2``, along the other the weights above, on the same stencil with the
   same extrapolation and NaN rules, divided by ``dx`` (``dy``).
 
-The scalar kernels :func:`bilinear_at`, :func:`stencil` and :func:`nearest_at` are
-numba functions that other compiled kernels (TERCOM, IOAP) call inline. Values may be
-float64 or float32 (a float32 map is read and interpolated in float64).
+The scalar kernel :func:`bilinear_at` is a numba function that other compiled kernels
+(TERCOM, GA-SCA, the filters' likelihood) call inline. Values may be float64 or float32
+(a float32 map is read and interpolated in float64).
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike
 
 # ----------------------------------------------------------------------------- scalar kernels
 @numba.njit(cache=True, nogil=True)
-def stencil(c, r, nx, ny):  # pragma: no cover - compiled
+def _stencil(c, r, nx, ny):  # pragma: no cover - compiled
     """``(inside, c0, r0, fc, fr)`` of the bilinear stencil at fractional cell ``(c, r)``."""
     if not (c >= 0.0 and r >= 0.0 and c <= nx - 1 and r <= ny - 1):
         return False, 0, 0, 0.0, 0.0
@@ -55,7 +55,7 @@ def stencil(c, r, nx, ny):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def combine(values, c0, r0, fc, fr):  # pragma: no cover - compiled
+def _combine(values, c0, r0, fc, fr):  # pragma: no cover - compiled
     """Bilinear combination of the stencil at ``values[r0:r0+2, c0:c0+2]``."""
     return (values[r0, c0] * (1 - fc) + values[r0, c0 + 1] * fc) * (1 - fr) + (
         values[r0 + 1, c0] * (1 - fc) + values[r0 + 1, c0 + 1] * fc
@@ -64,16 +64,29 @@ def combine(values, c0, r0, fc, fr):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True)
 def bilinear_at(values, c, r):  # pragma: no cover - compiled
-    """Bilinear value at fractional cell ``(c, r)``; NaN off the grid or on no-data."""
+    """Bilinear value at fractional cell ``(c, r)``; NaN off the grid or on no-data.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(ny, nx)`` map values (float64 or float32), NaN = no data.
+    c, r : float
+        Fractional column and row, cells (``c = (x - x0) / dx``).
+
+    Returns
+    -------
+    float
+        The interpolated value, map units.
+    """
     ny, nx = values.shape
-    inside, c0, r0, fc, fr = stencil(c, r, nx, ny)
+    inside, c0, r0, fc, fr = _stencil(c, r, nx, ny)
     if not inside:
         return np.nan
-    return combine(values, c0, r0, fc, fr)
+    return _combine(values, c0, r0, fc, fr)
 
 
 @numba.njit(cache=True, nogil=True)
-def nearest_at(values, c, r):  # pragma: no cover - compiled
+def _nearest_at(values, c, r):  # pragma: no cover - compiled
     """Value of the node nearest to ``(c, r)`` (half-to-even); NaN off the grid."""
     ny, nx = values.shape
     ic = np.rint(c)
@@ -84,7 +97,7 @@ def nearest_at(values, c, r):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def keys_weights(t):  # pragma: no cover - compiled
+def _keys_weights(t):  # pragma: no cover - compiled
     """Keys (a = -0.5) weights of the cells at offsets -1, 0, 1, 2 for fraction ``t``."""
     t2 = t * t
     t3 = t2 * t
@@ -108,8 +121,8 @@ def _cubic_row(values, r, c0, w0, w1, w2, w3, nx):  # pragma: no cover - compile
 
 
 @numba.njit(cache=True, nogil=True)
-def keys_derivative_weights(t):  # pragma: no cover - compiled
-    """Derivatives ``d/dt`` of :func:`keys_weights` (they sum to zero)."""
+def _keys_derivative_weights(t):  # pragma: no cover - compiled
+    """Derivatives ``d/dt`` of :func:`_keys_weights` (they sum to zero)."""
     t2 = t * t
     return (
         0.5 * (-3.0 * t2 + 4.0 * t - 1.0),
@@ -136,25 +149,25 @@ def _cubic_rows(values, r0, c0, w0, w1, w2, w3, nx, ny):  # pragma: no cover - c
 
 
 @numba.njit(cache=True, nogil=True)
-def bicubic_at(values, c, r):  # pragma: no cover - compiled
+def _bicubic_at(values, c, r):  # pragma: no cover - compiled
     """Keys bicubic value at fractional cell ``(c, r)``; NaN off the grid or on no-data."""
     ny, nx = values.shape
     if nx < 3 or ny < 3:
         return bilinear_at(values, c, r)
-    inside, c0, r0, fc, fr = stencil(c, r, nx, ny)
+    inside, c0, r0, fc, fr = _stencil(c, r, nx, ny)
     if not inside:
         return np.nan
-    a0, a1, a2, a3 = keys_weights(fc)
+    a0, a1, a2, a3 = _keys_weights(fc)
     h0, h1, h2, h3 = _cubic_rows(values, r0, c0, a0, a1, a2, a3, nx, ny)
-    b0, b1, b2, b3 = keys_weights(fr)
+    b0, b1, b2, b3 = _keys_weights(fr)
     return b0 * h0 + b1 * h1 + b2 * h2 + b3 * h3
 
 
 @numba.njit(cache=True, nogil=True)
-def bilinear_gradient_at(values, c, r):  # pragma: no cover - compiled
+def _bilinear_gradient_at(values, c, r):  # pragma: no cover - compiled
     """``(value, d/dc, d/dr)`` of the bilinear read at ``(c, r)``, per cell; NaN as the value."""
     ny, nx = values.shape
-    inside, c0, r0, fc, fr = stencil(c, r, nx, ny)
+    inside, c0, r0, fc, fr = _stencil(c, r, nx, ny)
     if not inside:
         return np.nan, np.nan, np.nan
     v00 = values[r0, c0] * 1.0
@@ -168,26 +181,26 @@ def bilinear_gradient_at(values, c, r):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def bicubic_gradient_at(values, c, r):  # pragma: no cover - compiled
+def _bicubic_gradient_at(values, c, r):  # pragma: no cover - compiled
     """``(value, d/dc, d/dr)`` of the Keys bicubic read at ``(c, r)``, per cell.
 
-    The value is :func:`bicubic_at`'s (the same operations); the derivative along one axis
-    combines :func:`keys_derivative_weights` along it with :func:`keys_weights` along the
+    The value is :func:`_bicubic_at`'s (the same operations); the derivative along one axis
+    combines :func:`_keys_derivative_weights` along it with :func:`_keys_weights` along the
     other, on the same edge-extrapolated ``4 x 4`` stencil, so all three are NaN off the
     grid and wherever a stencil cell is NaN. Bilinear below three cells along an axis.
     """
     ny, nx = values.shape
     if nx < 3 or ny < 3:
-        return bilinear_gradient_at(values, c, r)
-    inside, c0, r0, fc, fr = stencil(c, r, nx, ny)
+        return _bilinear_gradient_at(values, c, r)
+    inside, c0, r0, fc, fr = _stencil(c, r, nx, ny)
     if not inside:
         return np.nan, np.nan, np.nan
-    a0, a1, a2, a3 = keys_weights(fc)
+    a0, a1, a2, a3 = _keys_weights(fc)
     h0, h1, h2, h3 = _cubic_rows(values, r0, c0, a0, a1, a2, a3, nx, ny)
-    da0, da1, da2, da3 = keys_derivative_weights(fc)
+    da0, da1, da2, da3 = _keys_derivative_weights(fc)
     g0, g1, g2, g3 = _cubic_rows(values, r0, c0, da0, da1, da2, da3, nx, ny)
-    b0, b1, b2, b3 = keys_weights(fr)
-    db0, db1, db2, db3 = keys_derivative_weights(fr)
+    b0, b1, b2, b3 = _keys_weights(fr)
+    db0, db1, db2, db3 = _keys_derivative_weights(fr)
     value = b0 * h0 + b1 * h1 + b2 * h2 + b3 * h3
     d_col = b0 * g0 + b1 * g1 + b2 * g2 + b3 * g3
     d_row = db0 * h0 + db1 * h1 + db2 * h2 + db3 * h3
@@ -204,26 +217,26 @@ def _bilinear_xy(values, x0, y0, dx, dy, x, y, out):  # pragma: no cover - compi
 @numba.njit(cache=True, nogil=True)
 def _bicubic_xy(values, x0, y0, dx, dy, x, y, out):  # pragma: no cover - compiled
     for i in range(x.shape[0]):
-        out[i] = bicubic_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
+        out[i] = _bicubic_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
 
 
 @numba.njit(cache=True, nogil=True)
 def _bicubic_beams(values, col, row, bcol, brow, out):  # pragma: no cover - compiled
     for i in range(col.shape[0]):
         for b in range(bcol.shape[0]):
-            out[i, b] = bicubic_at(values, col[i] + bcol[b], row[i] + brow[b])
+            out[i, b] = _bicubic_at(values, col[i] + bcol[b], row[i] + brow[b])
 
 
 @numba.njit(cache=True, nogil=True)
 def _nearest_xy(values, x0, y0, dx, dy, x, y, out):  # pragma: no cover - compiled
     for i in range(x.shape[0]):
-        out[i] = nearest_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
+        out[i] = _nearest_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
 
 
 @numba.njit(cache=True, nogil=True)
 def _gradient_xy(values, x0, y0, dx, dy, x, y, out, gx, gy):  # pragma: no cover - compiled
     for i in range(x.shape[0]):
-        value, d_col, d_row = bilinear_gradient_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
+        value, d_col, d_row = _bilinear_gradient_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
         out[i] = value
         gx[i] = d_col / dx
         gy[i] = d_row / dy
@@ -232,7 +245,7 @@ def _gradient_xy(values, x0, y0, dx, dy, x, y, out, gx, gy):  # pragma: no cover
 @numba.njit(cache=True, nogil=True)
 def _bicubic_gradient_xy(values, x0, y0, dx, dy, x, y, out, gx, gy):  # pragma: no cover
     for i in range(x.shape[0]):
-        value, d_col, d_row = bicubic_gradient_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
+        value, d_col, d_row = _bicubic_gradient_at(values, (x[i] - x0) / dx, (y[i] - y0) / dy)
         out[i] = value
         gx[i] = d_col / dx
         gy[i] = d_row / dy
@@ -315,8 +328,16 @@ def gradient_xy(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Value of a map read and its exact gradient at metric positions.
 
-    Parameters are those of :func:`read_xy`; ``method`` is ``"bilinear"`` (default) or
-    ``"bicubic"`` (the nearest-node read has no gradient).
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(ny, nx)`` map values (float64 or float32), NaN = no data.
+    x0, y0, dx, dy : float
+        Centre of cell ``[0, 0]`` and cell size, metres.
+    x, y : array_like
+        Eastings and northings, metres; broadcastable shapes.
+    method : {"bilinear", "bicubic"}
+        Interpolation (the nearest-node read has no gradient).
 
     Returns
     -------
@@ -348,7 +369,21 @@ def gradient_xy(
 
 
 def bilinear_cells(values: ArrayLike, col: ArrayLike, row: ArrayLike) -> np.ndarray:
-    """Bilinear values at fractional cell indices ``(col, row)`` (broadcastable shapes)."""
+    """Bilinear values at fractional cell indices ``(col, row)``.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(ny, nx)`` map values (float64 or float32), NaN = no data.
+    col, row : array_like
+        Fractional columns and rows, cells; broadcastable shapes.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 values, map units, of the broadcast shape of ``col`` and ``row``; NaN off
+        the grid or on no-data.
+    """
     col, row = np.broadcast_arrays(np.asarray(col, dtype=float), np.asarray(row, dtype=float))
     out = np.empty(col.size)
     _bilinear_cells(_map_values(values), _flat(col), _flat(row), out)
@@ -397,7 +432,30 @@ def read_beams(
     beam_row: ArrayLike,
     method: str = "bilinear",
 ) -> np.ndarray:
-    """:func:`bilinear_beams` or its bicubic twin (``method``), same arguments and result."""
+    """Values at every hypothesis plus every beam offset, bilinear or bicubic.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(ny, nx)`` map values.
+    col, row : numpy.ndarray
+        ``(k,)`` fractional cells of the hypotheses.
+    beam_col, beam_row : numpy.ndarray
+        ``(b,)`` beam offsets in cells.
+    method : {"bilinear", "bicubic"}
+        Interpolation (one of :data:`READS`).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(k, b)`` values read at ``(col + beam_col, row + beam_row)``, as
+        :func:`bilinear_beams` for ``"bilinear"``.
+
+    Raises
+    ------
+    ValueError
+        If ``method`` is not one of :data:`READS`.
+    """
     if method == "bilinear":
         return bilinear_beams(values, col, row, beam_col, beam_row)
     if method != "bicubic":

@@ -168,7 +168,7 @@ def _axis_nodes(lo: float, hi: float, cell: float) -> np.ndarray:
     return start + cell * np.arange(n)
 
 
-def fractional_index(axis: np.ndarray, q: np.ndarray) -> np.ndarray:
+def _fractional_index(axis: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Fractional index of positions ``q`` along an ascending (possibly irregular) axis.
 
     Parameters
@@ -253,8 +253,8 @@ def project_lonlat_grid(
     for r0 in range(0, y.size, rows):
         node_x, node_y = np.meshgrid(x, y[r0 : r0 + rows])
         node_lon, node_lat = p(node_x, node_y, inverse=True)
-        col = fractional_index(lon, node_lon)
-        row = fractional_index(lat, node_lat)
+        col = _fractional_index(lon, node_lon)
+        row = _fractional_index(lat, node_lat)
         block = _bilinear(source, col, row)
         out[r0 : r0 + rows] = block
         low, high = np.fmin.reduce(block, axis=None), np.fmax.reduce(block, axis=None)

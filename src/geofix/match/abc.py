@@ -153,7 +153,7 @@ class AbcMhd:
         pairs = np.arange(problem.n - 1)
         full = pairs[pairs % self.full_every == 0]
         colony = self._search(problem, measured, full, None, rng)
-        chosen = screen_candidates(problem.indicated, colony, self.screen_half_window)
+        chosen = _screen_candidates(problem.indicated, colony, self.screen_half_window)
         if self.full_every > 1:
             colony, chosen = self._simplified(problem, measured, colony, chosen, rng)
         track = average_pair_matches(problem.indicated, colony.pairs, chosen.positions)
@@ -202,7 +202,7 @@ class AbcMhd:
         )
         simple = self._search(problem, measured, rest, centre_offset, rng)
         merged = Colonies.merge(colony, simple)
-        return merged, screen_candidates(ind, merged, self.screen_half_window)
+        return merged, _screen_candidates(ind, merged, self.screen_half_window)
 
     def _fix(self, problem, track, colony, chosen) -> Fix:
         cell = problem.grid.cell_size
@@ -314,7 +314,26 @@ class Colonies:
         tolerance: float,
         rng: np.random.Generator,
     ) -> None:
-        """Initialise, then employed, onlooker and scout phases for ``cfg.cycles``."""
+        """Initialise, then employed, onlooker and scout phases for ``cfg.cycles``.
+
+        Fills :attr:`sources`, :attr:`misfit`, :attr:`trials` and :attr:`evaluations`.
+
+        Parameters
+        ----------
+        cfg : AbcMhd
+            Supplies the number of food sources, ``cycles`` and the abandonment ``limit``
+            (``0``: four times the number of food sources).
+        misfit : PairMisfit
+            Misfit of candidate pairs, map units.
+        displacement : numpy.ndarray or None
+            ``(K, 2)`` expected displacement ``b - a`` per pair, metres; ``None`` leaves
+            ``b`` free in its box.
+        tolerance : float
+            Largest accepted distance between ``b - a`` and ``displacement``, metres
+            (candidates beyond it score ``inf``).
+        rng : numpy.random.Generator
+            Source of the random draws.
+        """
         sn = cfg.food_sources
         limit = cfg.limit or sn * 4
         self.sources = self._random_sources(sn, displacement, tolerance, rng)
@@ -485,7 +504,7 @@ class Colonies:
 
 # ---------------------------------------------------------------------- screening
 @dataclass(frozen=True)
-class Screened:
+class _Screened:
     """The chosen candidate of every pair.
 
     ``positions`` ``(K, 4)``, its screening distance ``distance`` ``(K,)`` metres and its
@@ -497,7 +516,7 @@ class Screened:
     misfit: np.ndarray
 
 
-def screen_candidates(indicated: np.ndarray, colony: Colonies, half_window: int) -> Screened:
+def _screen_candidates(indicated: np.ndarray, colony: Colonies, half_window: int) -> _Screened:
     """Pick each pair's candidate by the mean Hausdorff distance to the aligned track.
 
     Parameters
@@ -512,7 +531,7 @@ def screen_candidates(indicated: np.ndarray, colony: Colonies, half_window: int)
 
     Returns
     -------
-    Screened
+    _Screened
         The chosen pair for each of the ``K`` pairs (the best-misfit source when a pair
         has a single candidate), with its mean Hausdorff distance, metres.
     """
@@ -540,7 +559,7 @@ def screen_candidates(indicated: np.ndarray, colony: Colonies, half_window: int)
     rows = np.arange(k)
     if not np.isfinite(dist[rows, best]).all():
         raise MatchError("abc-mhd: a pair has no candidate on valid map data")
-    return Screened(src[rows, best], dist[rows, best], colony.misfit[rows, best])
+    return _Screened(src[rows, best], dist[rows, best], colony.misfit[rows, best])
 
 
 def average_pair_matches(indicated: np.ndarray, pairs: np.ndarray, chosen: np.ndarray):

@@ -125,9 +125,9 @@ class GaSca:
     variant : str
         ``"A"`` full, ``"B"`` GA + new fitness, ``"C"`` GA + SCA, ``"D"`` plain GA.
     population : int
-        GA population size (not given by the source). With 60 and gentler mutation
-        (rate 0.1, scale 0.1) the GA stalled in local minima of the smooth benchmark
-        map at a (150, 150) m initial error; 200 with the mutation below did not.
+        GA population size (not given by the source). A small population with gentle
+        mutation stalls in local minima of a smooth map; the default, with the mutation
+        below, is sized to escape them.
     max_generations : int
         Upper bound on GA generations.
     stall_generations : int
@@ -177,9 +177,8 @@ class GaSca:
         three sequences) is below this many sensor-noise sigmas: on terrain flatter than
         the noise the pseudo-likelihood of the rivals is overconfident. 0.6, lower than
         TERCOM's 1 because the rival test already covers rough multimodal terrain and this
-        is only the backstop for a plain: the flat NAVO survey gives 0.2-0.5 at the fixes,
-        the gentlest benchmark terrain (source 000, terrain A) 0.74-0.97 at fixes mostly
-        within a few cells, all of which a threshold of 1 flagged.
+        is only the backstop for a plain (a threshold of 1 also flags good fixes on gentle
+        terrain).
     engine : str
         ``"numba"`` (compiled fitness, the default) or ``"numpy"`` (the vectorised
         reference); both give the same costs up to the order of summation.

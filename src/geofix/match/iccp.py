@@ -72,7 +72,7 @@ class _IccpResult:
     used_points: int
 
 
-def iccp_align(
+def _iccp_align(
     problem: MatchProblem,
     beams: np.ndarray,
     weights: np.ndarray,
@@ -159,7 +159,7 @@ class _IccpBase:
         grid = problem.grid
         x0, y0, values = map_window(problem, self._window_half(problem))
         contours = ContourMap(x0, y0, grid.dx, grid.dy, values)
-        result = iccp_align(
+        result = _iccp_align(
             problem,
             beams,
             weights,
@@ -223,9 +223,7 @@ class Iccp(_IccpBase):
     min_terrain_snr : float
         The fix is ambiguous when the map's std over the matched footprints is below this
         many sensor-noise sigmas. 1, as :class:`geofix.match.tercom.Tercom`: the residual
-        test is blind once the relief is within the noise, and on the gentlest benchmark
-        terrain (source 000, terrain A, ratio 0.84-1.15) the fixes it flags are 5-17
-        cells off.
+        test is blind once the relief is within the noise.
 
     References
     ----------

@@ -172,7 +172,7 @@ def epmp_ring_count(sigma: float, cell: float, sigma_multiple: float = 3.0) -> i
 _TRACK_COPIES = 6
 
 
-def epmp_point_estimate(
+def _epmp_point_estimate(
     sigma: float, cell: float, sigma_multiple: float = 3.0, reference: float = 1.5
 ) -> float:
     """Number of EPMP ring points of :func:`epmp_layout`, computed without allocating.
@@ -308,7 +308,7 @@ class Ioap:
         sigma0, sigma = ring_sigmas(problem.sigma_position)
         start = self.start_fix(problem, sigma0)
         centre = start + (problem.indicated[-1] - problem.indicated[0])
-        k = epmp_point_estimate(sigma, problem.grid.cell_size, self.sigma_multiple, self.reference)
+        k = _epmp_point_estimate(sigma, problem.grid.cell_size, self.sigma_multiple, self.reference)
         check_allocation(
             cells_bytes(k, problem.n, 2, copies=_TRACK_COPIES) + cells_bytes(k, copies=16),
             f"ioap end-point rings of about {k:.3g} candidates x {problem.n} samples "
@@ -368,7 +368,24 @@ class Ioap:
         return points[int(np.nanargmin(misfit))]
 
     def candidate_tracks(self, problem: MatchProblem, start, ends: np.ndarray) -> np.ndarray:
-        """``(k, n, 2)`` candidate tracks ending on ``ends`` ``(k, 2)``, metres."""
+        """Candidate tracks ending on ``ends``, shaped by :attr:`track_shape`.
+
+        Parameters
+        ----------
+        problem : MatchProblem
+            Supplies the indicated track ``(n, 2)``, metres.
+        start : numpy.ndarray
+            ``(2,)`` start fix, metres; used by ``track_shape="anchor"`` only (a
+            ``"translate"`` track, or an anchored one whose indicated track has no extent,
+            is the indicated track moved to end on each end point).
+        ends : numpy.ndarray
+            ``(k, 2)`` candidate end points, metres.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(k, n, 2)`` candidate tracks, metres.
+        """
         indicated = problem.indicated
         if self.track_shape == "translate":
             return indicated[None] + (ends - indicated[-1])[:, None, :]
@@ -481,11 +498,25 @@ def translated_msd_scores(
 def translated_msd_scores_numpy(
     problem: MatchProblem, ends: np.ndarray, min_valid_fraction: float = 0.9
 ) -> np.ndarray:
-    """Vectorised-numpy reference of :func:`translated_msd_scores` (same arguments, units).
+    """Vectorised-numpy reference of :func:`translated_msd_scores`.
 
     Gathers the ``(k, n, b)`` nearest-node map values from the window the candidates
     cover, then scores them with the shared MSD rule; equal to the kernel's scores up to
     the order of summation (NaN for the same candidates).
+
+    Parameters
+    ----------
+    problem : MatchProblem
+        Map, indicated track, heading, beam offsets and measurements (NaN skipped).
+    ends : numpy.ndarray
+        ``(k, 2)`` candidate end points on grid nodes, metres.
+    min_valid_fraction : float
+        Candidates valid on fewer than this share of the measured values are NaN.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(k,)`` MSD in squared map units; NaN when discarded.
     """
     grid = problem.grid
     rel_col, rel_row = _footprint_cells(problem)

@@ -51,5 +51,20 @@ def rotation_2d(theta: float) -> np.ndarray:
 
 
 def apply_transform(points: np.ndarray, rotation: np.ndarray, translation: np.ndarray):
-    """``R p + t`` for every row ``p`` of ``points``."""
+    """``R p + t`` for every row ``p`` of ``points``.
+
+    Parameters
+    ----------
+    points : numpy.ndarray
+        ``(n, d)`` points, metres.
+    rotation : numpy.ndarray
+        ``(d, d)`` rotation matrix ``R``.
+    translation : numpy.ndarray
+        ``(d,)`` translation ``t``, metres.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, d)`` transformed points, metres.
+    """
     return np.asarray(points) @ rotation.T + translation

@@ -283,7 +283,7 @@ class ErrorState:
         return h @ cov @ h.T
 
 
-def clockwise_derivative(vector) -> np.ndarray:
+def _clockwise_derivative(vector) -> np.ndarray:
     """``J v = (v_y, -v_x)``: the change of ``v`` rotated clockwise by a small angle (per rad)."""
     v = np.asarray(vector, dtype=float)
     return np.stack([v[..., 1], -v[..., 0]], axis=-1)
@@ -353,7 +353,7 @@ def _free_steps(model: InsErrorModel, dts, u) -> tuple[np.ndarray, np.ndarray]:
             float(dt), model.schuler, model.latitude_rad, model.accel_psd, model.gyro_psd, d
         )
         jump = np.eye(d)
-        jump[2:4, 10] = clockwise_derivative(u[k + 1] - u[k])
+        jump[2:4, 10] = _clockwise_derivative(u[k + 1] - u[k])
         transitions[k] = phi @ jump
         process[k] = q
     return transitions, process
@@ -386,6 +386,22 @@ def van_loan(a: np.ndarray, qc: np.ndarray, dt: float) -> tuple[np.ndarray, np.n
     """Exact discretisation ``(expm(A dt), Q_d)`` of ``x' = A x + w``, ``E[w w^T] = Qc``.
 
     Van Loan (1978): one ``expm`` of the ``2d x 2d`` block matrix ``[[-A, Qc], [0, A^T]]``.
+
+    Parameters
+    ----------
+    a : numpy.ndarray
+        ``(d, d)`` continuous-time system matrix ``A``, per second.
+    qc : numpy.ndarray
+        ``(d, d)`` power spectral density ``Qc`` of the white noise ``w``, state units
+        squared per second.
+    dt : float
+        Step, seconds.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(F, Q_d)``: the ``(d, d)`` transition over ``dt`` and the symmetric ``(d, d)``
+        covariance of the noise accumulated over it, state units squared.
     """
     d = a.shape[0]
     block = np.zeros((2 * d, 2 * d))
@@ -405,7 +421,7 @@ def _dvl_steps(model: InsErrorModel, dts, u) -> tuple[np.ndarray, np.ndarray]:
     process = np.zeros((dts.size, d, d))
     for k, dt in enumerate(dts):
         step = u[k + 1] * dt
-        rot = clockwise_derivative(step)
+        rot = _clockwise_derivative(step)
         transitions[k, 0:2, 2] = rot
         transitions[k, 0:2, 3] = 0.5 * dt * rot
         transitions[k, 0:2, 4] = step
@@ -459,7 +475,7 @@ def _prior(model: InsErrorModel, v0) -> tuple[np.ndarray, np.ndarray]:
     for src, dst in ((0, 0), (1, 1), (2, 2), (3, 3), (4, 6), (5, 7), (6, 8), (7, 9), (8, 11)):
         factor[dst, src] = 1.0
     factor[10, 9] = 1.0
-    factor[2:4, 9] = clockwise_derivative(v0)
+    factor[2:4, 9] = _clockwise_derivative(v0)
     if model.dvl_aiding:
         factor[12, 10] = factor[13, 11] = 1.0
     vel, acc, bd = model.velocity_error**2 / 2.0, model.accel_bias**2 / 2.0, model.dvl_bias**2 / 2
@@ -477,8 +493,20 @@ def noise_factor(q: np.ndarray) -> np.ndarray:
 def propagate(es: ErrorState, x0: np.ndarray, white=None) -> np.ndarray:
     """Run ``x_k = F_k x_{k-1} + L_k white_k`` from ``x0``; ``(n, d)`` states.
 
-    ``white`` ``(n - 1, d)`` standard normals (None: no process noise); ``L_k`` from
-    :func:`noise_factor` of ``Q_k``.
+    Parameters
+    ----------
+    es : ErrorState
+        The error model: transitions ``F_k`` and process covariances ``Q_k``.
+    x0 : numpy.ndarray
+        ``(d,)`` initial error state, state units (metres, m/s, radians, ...).
+    white : numpy.ndarray, optional
+        ``(n - 1, d)`` standard normals (None: no process noise); ``L_k`` is
+        :func:`noise_factor` of ``Q_k``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, d)`` error states, ``x_0`` first.
     """
     n = es.transitions.shape[0] + 1
     out = np.empty((n, es.dim))
