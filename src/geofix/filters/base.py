@@ -22,6 +22,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from geofix.filters.loop import FilterSettings, FilterStepper
 from geofix.maps.grid import Grid
 from geofix.measurement import lag_compensated
 from geofix.problem import Fix, MatchProblem
@@ -151,9 +152,18 @@ def observations(problem: MatchProblem) -> list[Observation]:
 def run_filter(filt, problem: MatchProblem, rng: np.random.Generator) -> Fix:
     """The one time loop: initialise, then predict and update at every sample.
 
-    Every step goes through :class:`geofix.filters.online.OnlineFilter` (with its passive
-    settings: no gating, no re-initialisation), the same two steps a replay or a server
-    connection drives, so a campaign trial and an online navigator share one step.
+    Every step goes through :class:`geofix.filters.loop.FilterStepper` (the filter with
+    its measurement model's nuisance states), the same steps the online navigator
+    (:mod:`geofix.navigator`) drives with its gating and re-initialisation around them.
+
+    Parameters
+    ----------
+    filt : RecursiveFilter
+        The filter.
+    problem : MatchProblem
+        The mission: its prior at the first sample, the motions and the pings.
+    rng : numpy.random.Generator
+        Source of every random draw of the filter.
 
     Returns
     -------
@@ -161,20 +171,17 @@ def run_filter(filt, problem: MatchProblem, rng: np.random.Generator) -> Fix:
         ``track`` the estimate at every sample; ``covariance`` the last one;
         ``diagnostics["covariances"]`` ``(n, 2, 2)``; ``ambiguous`` from the final state.
     """
-    from geofix.filters.online import NavigatorSettings, OnlineFilter
-
     grid: Grid = problem.grid
     obs = observations(problem)
     steps = motions(problem)
-    nav = OnlineFilter(filt, grid, NavigatorSettings.passive(), rng)
-    nav.start(problem)
+    stepper = FilterStepper(filt, grid, FilterSettings(), rng)
+    stepper.start(problem)
     means, covs = [np.empty((problem.n, 2)), np.empty((problem.n, 2, 2))]
     for k in range(problem.n):
         if k > 0:
-            nav.predict(steps[k - 1])
-        est = nav.update(obs[k], float(problem.times[k]))
-        means[k], covs[k] = est.position, est.covariance
-    state = nav.state
+            stepper.predict(steps[k - 1])
+        means[k], covs[k] = stepper.update(obs[k], float(problem.times[k]))
+    state = stepper.state
     return Fix(
         track=means,
         covariance=covs[-1],

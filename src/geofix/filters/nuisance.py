@@ -28,7 +28,7 @@ themselves:
   moves to the residuals it sees and reports the covariance they support; a filter told
   the right noise keeps it.
 
-Both are immutable values; :class:`geofix.filters.online.OnlineFilter` carries them for
+Both are immutable values; :class:`geofix.filters.loop.FilterStepper` carries them for
 every filter with weighted points (the point-mass, particle and marginalised particle
 filters), in a campaign trial as on line.
 """
@@ -36,15 +36,18 @@ filters), in a campaign trial as on line.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import ndimage
 
 from geofix.errors import ConfigError
-from geofix.filters.base import Observation
 from geofix.maps.grid import Grid
 from geofix.measurement import common_bias_posterior, predict_measurements
 from geofix.memory import cells_bytes, check_allocation
+
+if TYPE_CHECKING:  # annotations only: the filter loop below base.run_filter imports this
+    from geofix.filters.base import Observation
 
 #: Default prior 1-sigma of the common offset for a depth map: metres plus a share of the
 #: water depth (a sound-speed error of 0.2 % scales every depth).
@@ -63,7 +66,7 @@ common offset (measured minus map) estimated with the position -- per hypothesis
 pings of fewer than three beams (:mod:`geofix.filters.hypothesis_offset`), the
 navigator's one :class:`CommonOffset` otherwise. ``adaptive``: the same without the
 offset. ``exact``: the map is the seabed up to white noise per beam. The navigator's
-settings per model: :meth:`geofix.filters.online.NavigatorSettings.for_map_model`.
+settings per model: :meth:`geofix.filters.loop.FilterSettings.for_map_model`.
 """
 
 

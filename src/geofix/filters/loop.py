@@ -1,0 +1,363 @@
+"""The plain filter loop: one recursive filter, its state and its measurement model.
+
+:class:`FilterStepper` holds a filter of the per-step protocol of
+:mod:`geofix.filters.base`, its state and the measurement model's nuisance states of
+:mod:`geofix.filters.nuisance` -- the common offset (measured minus map), the residual
+scale and the share of the map's representation error -- and steps them together:
+:meth:`~FilterStepper.start`, :meth:`~FilterStepper.predict` and
+:meth:`~FilterStepper.update`. :func:`geofix.filters.base.run_filter` (every campaign
+trial) drives it as it is; the online navigator (:mod:`geofix.navigator`) drives the
+same pieces (:meth:`~FilterStepper.weigh`, :meth:`~FilterStepper.fold`,
+:meth:`~FilterStepper.learn`) with its gating, statuses and re-initialisation around them.
+
+Each ping is taken relative to the offset's mean with its likelihood marginalised over the
+offset's variance, its variance widened by the representation error and the residual
+scale; a filter that carries the offset per hypothesis (pings of fewer than three beams)
+takes the readings as they are with the offset's prior. After an accepted ping the scale
+and the share learn from its innovations and the offset from its residuals: always for a
+ping of fewer than three beams, for one of several only when the caller says the
+position is settled (the navigator: while ``converged``; never in a campaign trial).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from geofix.errors import ConfigError
+from geofix.filters.convergence import posterior_points
+from geofix.filters.nuisance import (
+    CommonOffset,
+    RepresentationShare,
+    ResidualScale,
+    correlated_share,
+    default_offset_std,
+    read_at_points,
+    representation_std,
+)
+from geofix.maps.grid import Grid
+from geofix.measurement import map_error_variance
+
+if TYPE_CHECKING:  # annotations only: base.run_filter imports this module
+    from geofix.filters.base import Motion, Observation
+    from geofix.problem import MatchProblem
+
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """What a filter's update is built with: the map read, the nuisance model, its size.
+
+    The measurement-model part of :class:`geofix.navigator.NavigatorSettings` (whose
+    documentation gives each field in full); the defaults are the navigator's.
+
+    Parameters
+    ----------
+    interpolation : {"bilinear", "bicubic"}
+        The map read of the measurement model.
+    depth_bias_std : float or None
+        Prior 1-sigma of the common offset, map units (0: none; None: the map's default,
+        :func:`geofix.filters.nuisance.default_offset_std`).
+    depth_bias_walk : float
+        Variance the offset gains per second, map units squared per second.
+    representation_error : bool
+        Add the map's representation error to every beam's variance.
+    adaptive_noise : bool
+        Scale the measurement variance by the residual scale of the innovations.
+    noise_forgetting : float
+        Forgetting factor per ping of the residual scale and the representation share.
+    offset_per_hypothesis : bool or None
+        A filter that can carries the offset per hypothesis (None: for pings of fewer
+        than three beams).
+    max_update_beams : int or None
+        Most valid beams of one update (None: every beam of a ping), what the filter is
+        sized for (:mod:`geofix.filters.sizing`).
+    max_beams : int
+        Most beams a ping may carry.
+    """
+
+    interpolation: str = "bilinear"
+    depth_bias_std: float | None = 0.0
+    depth_bias_walk: float = 1e-3
+    representation_error: bool = False
+    adaptive_noise: bool = False
+    noise_forgetting: float = 0.98
+    offset_per_hypothesis: bool | None = None
+    max_update_beams: int | None = 64
+    max_beams: int = 4096
+
+    def for_map_model(self, map_model: str) -> FilterSettings:
+        """These settings for a filter of ``map_model`` ``exact``, ``adaptive`` or ``imperfect``.
+
+        Parameters
+        ----------
+        map_model : str
+            ``exact``: unchanged. ``adaptive``: the representation error and the adaptive
+            residual scale switched on. ``imperfect``: those and the common offset (at the
+            map's default prior unless ``depth_bias_std`` is set).
+
+        Returns
+        -------
+        FilterSettings
+            The settings the filter runs with (applying them twice changes nothing).
+        """
+        if map_model not in ("adaptive", "imperfect"):
+            return self
+        adaptive = replace(self, representation_error=True, adaptive_noise=True)
+        if map_model == "adaptive":
+            return adaptive
+        std = None if self.depth_bias_std == 0 else self.depth_bias_std
+        return replace(adaptive, depth_bias_std=std)
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> FilterSettings:
+        """Settings from a mapping; unknown keys are a ConfigError naming them."""
+        values = dict(values or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ConfigError(
+                f"filter: unknown setting(s) {', '.join(unknown)} (known: {', '.join(known)})"
+            )
+        return cls(**values)
+
+
+class FilterStepper:
+    """One recursive filter with its state and its measurement model's nuisance states.
+
+    Parameters
+    ----------
+    filt
+        A filter of the per-step protocol (``initialize``, ``predict``, ``update``,
+        ``estimate``), e.g. :class:`geofix.filters.pmf.Pmf`.
+    grid : Grid
+        The map; read with ``settings.interpolation``.
+    settings : FilterSettings, optional
+        The measurement model (default :class:`FilterSettings`), taken for the filter's
+        ``map_model`` (:meth:`FilterSettings.for_map_model`).
+    rng : numpy.random.Generator or None
+        Source of every random draw of the filter (None only for deterministic filters).
+    """
+
+    def __init__(self, filt, grid: Grid, settings: FilterSettings | None = None, rng=None):
+        self.filter = filt
+        settings = settings or FilterSettings()
+        self.settings = settings.for_map_model(getattr(filt, "map_model", "exact"))
+        if grid.interpolation != self.settings.interpolation:
+            grid = replace(grid, interpolation=self.settings.interpolation)
+        self.grid = grid
+        self.rng = rng
+        self.state = None
+        self._representation: Grid | None = None  # the map's representation error, on use
+        self._last_ping_at: np.ndarray | None = None  # indicated position of the last ping
+        self.reset_nuisance(0.0)
+
+    # ------------------------------------------------------------------ the plain loop
+    def start(self, problem: MatchProblem) -> None:
+        """Initialise from a problem's prior (its first sample); the nuisance at its priors.
+
+        The state is kept when ``filter.initialize`` raises.
+        """
+        self.state = self.filter.initialize(problem, self.rng)
+        self.reset_nuisance(float(problem.times[0]))
+
+    def predict(self, motion: Motion) -> None:
+        """Apply the INS motion of one step to the posterior."""
+        self.state = self.filter.predict(self.state, motion, self.rng)
+
+    def update(self, obs: Observation, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Fold in one ping with at least one valid beam; the posterior after it.
+
+        Parameters
+        ----------
+        obs : Observation
+            The ping as measured.
+        t : float
+            Its time, seconds.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            ``(mean (2,), covariance (2, 2))`` of the posterior, metres and m^2.
+        """
+        relative, weighed = self.weigh(obs, t)
+        if np.isfinite(weighed.values).any():
+            prior = self.filter.estimate(self.state)
+            if self.fold(weighed):
+                self.learn(relative, weighed, prior)
+        return self.estimate()
+
+    def estimate(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(mean (2,), covariance (2, 2))`` of the current posterior, metres and m^2."""
+        mean, cov = self.filter.estimate(self.state)
+        return np.asarray(mean, dtype=float), np.asarray(cov, dtype=float)
+
+    # ------------------------------------------------------------------ the pieces
+    def reset_nuisance(self, t: float) -> None:
+        """The nuisance states back at their priors: the offset ``N(0, std^2)``, scale 1.
+
+        The offset is modelled only for a filter with weighted points (a grid or particle
+        set; :func:`~geofix.filters.convergence.posterior_points`).
+        """
+        s = self.settings
+        std = s.depth_bias_std
+        if std is None:
+            std = default_offset_std(self.grid)
+        weighted = self.state is not None and posterior_points(self.state) is not None
+        self.offset = CommonOffset.prior(std if weighted else 0.0, s.depth_bias_walk, t)
+        self._offset_prior_var = self.offset.var
+        self._profile_offset: bool | None = None  # offsets per hypothesis (first ping)
+        self.scale = ResidualScale.prior(s.noise_forgetting)
+        self._share = RepresentationShare.prior(s.noise_forgetting)
+        self._ping_variances: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def noise_factor(self) -> float:
+        """The residual scale's factor on the declared measurement variance (1: none)."""
+        return self.scale.factor if self.settings.adaptive_noise else 1.0
+
+    def weigh(self, obs: Observation, t: float) -> tuple[Observation, Observation]:
+        """``(relative, weighed)``: the ping relative to the offset, and with the scale too.
+
+        Both carry the map's representation error in their variance. The offset is
+        predicted to ``t`` (seconds).
+        """
+        self.offset = self.offset.predicted(t)
+        if self._profile_offset is None:
+            chosen = self.settings.offset_per_hypothesis
+            self._profile_offset = obs.values.size < 3 if chosen is None else bool(chosen)
+        read = self._with_representation(obs)
+        relative = self.offset.relative(read)
+        weighed = self.scale.scaled(relative) if self.settings.adaptive_noise else relative
+        return relative, weighed
+
+    def fold(self, weighed: Observation) -> bool:
+        """Fold the weighed ping in; a step that leaves a non-finite estimate is refused.
+
+        The state before it is kept (a reading the input checks let through, such as
+        1e160 on a map of metres, must not poison the filter). Returns whether the ping
+        was folded in.
+        """
+        before = self.state
+        with np.errstate(all="ignore"):
+            ping = self._for_filter(weighed)
+            self.state = self.filter.update(self.state, ping, self.grid, self.rng)
+            mean, cov = self.filter.estimate(self.state)
+        if np.isfinite(mean).all() and np.isfinite(cov).all():
+            return True
+        self.state = before
+        return False
+
+    def learn(
+        self, relative: Observation, weighed: Observation, prior, settled: bool = False
+    ) -> None:
+        """After a folded ping: the scale and share from its innovations, the offset too.
+
+        Parameters
+        ----------
+        relative : Observation
+            The ping relative to the offset (:meth:`weigh`).
+        weighed : Observation
+            The same with the residual scale.
+        prior : tuple of numpy.ndarray
+            ``(mean (2,), covariance (2, 2))`` before the ping, metres and m^2.
+        settled : bool
+            The position is settled (the navigator: ``converged`` at the ping before): a
+            ping of three beams or more then updates the offset's mean too. A ping of
+            fewer always does: alone it says nothing of the position's shape, and the
+            offset is what links it to the next. Learning the offset from a multibeam
+            ping while the position is uncertain along a slope lets the two trade against
+            each other, so a campaign trial (no status) never does: each such ping is
+            marginalised over the offset's prior.
+        """
+        if self.settings.adaptive_noise and self._gaussian_enough(prior[1]):
+            prior_mean, prior_cov = prior
+            reads = read_at_points(self.grid, prior_mean, prior_cov, relative)
+            if self._ping_variances is not None:
+                declared, extra = self._ping_variances
+                self._share = self._share.updated(reads, declared, extra, relative.bias_var)
+            self.scale = self.scale.updated(reads, relative.bias_var)
+        if not self.offset.active:
+            return
+        if self.carries_offset:  # the filter's own offsets, summarised for the report
+            moments = self.filter.offset_moments(self.state)
+            if moments is not None:
+                self.offset = replace(self.offset, mean=moments[0], var=moments[1])
+            return
+        if int(np.isfinite(relative.values).sum()) < 3 or settled:
+            mean, cov = self.filter.estimate(self.state)
+            reads = read_at_points(self.grid, mean, cov, weighed)
+            self.offset = self.offset.updated(reads, weighed.bias_var)
+
+    @property
+    def carries_offset(self) -> bool:
+        """The filter carries the offset per hypothesis (its own offset states).
+
+        For pings of fewer than three beams, whose offset and position only a profile of
+        several pings separates (decided at the first ping after a reset). A multibeam
+        ping's shape tells the position whatever the offset, and an offset per hypothesis
+        fitted to each ping lets a shift along a slope trade against it on a map whose
+        errors are not one offset, so those pings use the one common offset.
+        """
+        return (
+            bool(getattr(self.filter, "carries_offset", False))
+            and self.offset.active
+            and bool(self._profile_offset)
+        )
+
+    def _for_filter(self, weighed: Observation) -> Observation:
+        """The ping as the filter takes it.
+
+        A filter that carries the offset per hypothesis takes the readings as they are,
+        with the offset's prior variance and walk (it starts its own offsets from them);
+        any other the readings relative to the common offset (``weighed``).
+        """
+        if not self.carries_offset:
+            return weighed
+        return replace(
+            weighed,
+            values=weighed.values + self.offset.mean,
+            bias_var=self._offset_prior_var,
+            bias_walk=self.offset.walk,
+            bias_per_hypothesis=True,
+        )
+
+    def _with_representation(self, obs: Observation) -> Observation:
+        """``obs`` with the map's representation error added to each beam's variance.
+
+        The layer's variance times the share the innovations support so far
+        (:class:`~geofix.filters.nuisance.RepresentationShare`).
+        """
+        self._ping_variances = None
+        if not self.settings.representation_error or self.state is None:
+            return obs
+        if self._representation is None:
+            self._representation = representation_std(self.grid)
+        mean, _ = self.filter.estimate(self.state)
+        extra = map_error_variance(self._representation, mean, obs.heading, obs.offsets)
+        if not extra.any():
+            return obs
+        step = None
+        if self._last_ping_at is not None:
+            step = float(np.hypot(*(obs.indicated - self._last_ping_at)))
+        self._last_ping_at = np.asarray(obs.indicated, dtype=float)
+        # the innovations measure each beam's own variance: the share is fitted to the
+        # layer as it is, and the beams that share one map error are counted once after
+        declared = np.asarray(obs.noise_var, dtype=float)
+        self._ping_variances = (declared, extra)
+        counted = correlated_share(obs.offsets, self.grid.cell_size, step)
+        return replace(obs, noise_var=declared + self._share.value * counted * extra)
+
+    def _gaussian_enough(self, cov: np.ndarray) -> bool:
+        """Whether the position prior is narrow enough to measure the residual scale.
+
+        Within two map cells (largest 1-sigma) its five unscented points predict a ping's
+        spread, so its innovations measure the scale; a wider, often many-moded prior
+        does not.
+        """
+        sigma = float(np.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0)))
+        return sigma <= 2.0 * self.grid.cell_size
+
+
+__all__ = ["FilterSettings", "FilterStepper"]
