@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from geofix.match.hausdorff import (
+from geofix.match._hausdorff import (
     batch_mean_hausdorff,
     directed_mean_distance,
     hausdorff,

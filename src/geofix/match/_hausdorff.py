@@ -11,6 +11,8 @@ For finite point sets ``A`` and ``B``:
 
 The mean variant is what source 003 screens gravity matches with: one outlying point moves
 it by ``1/|A|`` of its distance instead of all of it.
+
+Private to :mod:`geofix.match`; its user is :mod:`geofix.match.abc`.
 """
 
 from __future__ import annotations

@@ -54,7 +54,7 @@ from typing import ClassVar
 import numpy as np
 
 from geofix.errors import ConfigError, MatchError
-from geofix.match.hausdorff import batch_mean_hausdorff
+from geofix.match._hausdorff import batch_mean_hausdorff
 from geofix.measurement import predict_track
 from geofix.problem import Fix, MatchProblem
 from geofix.sensors.gravimeter import compensate_first_order_lag
