@@ -175,8 +175,27 @@ def sca_refine(
     """Sine-cosine refinement of the elite (Mirjalili 2016), compiled end to end.
 
     The same steps, random draws (same order and shapes) and selection as the numpy
-    formulation in :meth:`GaSca._sca_numpy`; ``fitness`` is the tuple of the remaining
-    arguments of :func:`ga_costs` after ``params``, split as ``(head, tail)``.
+    formulation in :meth:`GaSca._sca_numpy`.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The match's random source (advanced in place).
+    elite : numpy.ndarray
+        ``(4,)`` the GA's best individual ``(t_x, t_y, alpha, theta)``: metres, metres,
+        scale, radians.
+    half : numpy.ndarray
+        ``(4,)`` half-widths of the SCA box around the elite, same units.
+    lower, upper : numpy.ndarray
+        ``(4,)`` bounds of the search box, same units.
+    population : int
+        SCA population (the first member is the elite itself).
+    iterations : int
+        SCA iterations.
+    a : float
+        SCA constant: the step amplitude ``r1`` falls linearly from ``a`` to 0.
+    fitness : tuple
+        ``(head, tail)`` arguments of :func:`ga_costs` before and after ``params``.
 
     Returns
     -------
@@ -220,6 +239,26 @@ def ga_offspring(
 
     The same random draws, in the same order and shapes, as the numpy operators of
     :class:`GaSca` (``_tournament``, ``_crossover``, ``_mutate``).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The match's random source (advanced in place).
+    pool : numpy.ndarray
+        ``(m, 4)`` selection pool ``(t_x, t_y, alpha, theta)``: metres, metres, scale,
+        radians.
+    pool_cost : numpy.ndarray
+        ``(m,)`` GA costs of the pool (lower wins a tournament).
+    population : int
+        GA population size ``P``; ``P - 1`` children are returned.
+    crossover_rate : float
+        Probability that a pair of parents is crossed.
+    mutation_rate : float
+        Probability that one gene mutates.
+    mutation_scale : float
+        Mutation standard deviation as a share of the box half-width.
+    lower, upper : numpy.ndarray
+        ``(4,)`` bounds of the search box; children are clipped to it.
 
     Returns
     -------
@@ -265,6 +304,17 @@ def score_children(children, source, pool_cost, pool_mad, fitness):  # pragma: n
 
     A child that copies a pool member (``source >= 0``, see :func:`ga_offspring`) takes
     that member's numbers; the others go through :func:`ga_costs` in one call.
+
+    Parameters
+    ----------
+    children : numpy.ndarray
+        ``(P, 4)`` children.
+    source : numpy.ndarray
+        ``(P,)`` index in the pool of the member each child copies, ``-1`` for a new one.
+    pool_cost, pool_mad : numpy.ndarray
+        GA costs and mean absolute differences (map units) of the pool.
+    fitness : tuple
+        ``(head, tail)`` arguments of :func:`ga_costs` before and after ``params``.
 
     Returns
     -------

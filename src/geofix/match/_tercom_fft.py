@@ -51,8 +51,20 @@ SUPPORTED = ("msd", "cor", "ncor")
 def fft_window(shape, col, row, kc, kr):
     """Map window the route reads, or None when it would leave the map.
 
-    Returns ``(r_lo, r_hi, c_lo, c_hi, c0, r0, w)``: the window ``values[r_lo:r_hi,
-    c_lo:c_hi]`` and the stencil base cells and weights of the samples.
+    Parameters
+    ----------
+    shape : tuple of int
+        ``(ny, nx)`` of the map.
+    col, row : numpy.ndarray
+        ``(n,)`` fractional cells of the samples at zero shift.
+    kc, kr : numpy.ndarray
+        Increasing int64 whole-cell shifts along columns and rows.
+
+    Returns
+    -------
+    tuple or None
+        ``(r_lo, r_hi, c_lo, c_hi, c0, r0, w)``: the window ``values[r_lo:r_hi,
+        c_lo:c_hi]`` and the stencil base cells and weights of the samples.
     """
     ny, nx = shape
     c0, r0, w = stencil_weights(col, row)

@@ -289,7 +289,28 @@ def _prune_pass(partial, count, left, alive, threshold, lo, hi):  # pragma: no c
 
 @numba.njit(cache=True)
 def exact_costs(values, col, row, h, kc, kr, mode, need):  # pragma: no cover - compiled
-    """Complete ``msd``/``mad`` cost of candidates ``(kr[i], kc[i])`` (NaN if too few valid)."""
+    """Complete ``msd``/``mad`` cost of candidates ``(kr[i], kc[i])`` (NaN if too few valid).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(ny, nx)`` map values.
+    col, row : numpy.ndarray
+        ``(n,)`` fractional cells of the samples at zero shift.
+    h : numpy.ndarray
+        ``(n,)`` measured values, map units.
+    kc, kr : numpy.ndarray
+        ``(q,)`` shifts of the candidates, cells.
+    mode : int
+        0: mean squared difference, 1: mean absolute difference.
+    need : float
+        Fewest valid samples a candidate needs.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(q,)`` costs, squared or plain map units.
+    """
     out = np.full(kc.shape[0], np.nan)
     for q in range(kc.shape[0]):
         acc, valid = 0.0, 0
@@ -306,7 +327,24 @@ def exact_costs(values, col, row, h, kc, kr, mode, need):  # pragma: no cover - 
 
 @numba.njit(cache=True)
 def distance_cost(partial, count, alive, need):  # pragma: no cover - compiled
-    """``msd``/``mad`` surface: mean where enough samples were valid, NaN if not, inf if pruned."""
+    """``msd``/``mad`` surface: mean where enough samples were valid, NaN if not, inf if pruned.
+
+    Parameters
+    ----------
+    partial : numpy.ndarray
+        ``(J, K)`` sums of squared (or absolute) differences per shift.
+    count : numpy.ndarray
+        ``(J, K)`` valid samples per shift.
+    alive : numpy.ndarray
+        ``(J, K)`` False where the shift was pruned.
+    need : float
+        Fewest valid samples a shift needs.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(J, K)`` cost surface.
+    """
     out = np.empty(partial.shape)
     for j in range(partial.shape[0]):
         for k in range(partial.shape[1]):
