@@ -24,10 +24,9 @@ import numpy as np
 
 import bench_navigator as bn
 from geofix.filters import _grid_ops as ops
-from geofix.filters.online import NavigatorSettings
 from geofix.filters.pmf import Pmf, node_field_variance
 from geofix.measurement import log_likelihood, predict_measurements
-from geofix.navigator import Navigator
+from geofix.navigator import Navigator, NavigatorSettings
 
 
 class ReferencePmf(Pmf):

@@ -48,12 +48,11 @@ from pathlib import Path
 
 import numpy as np
 
-from geofix.filters.online import NavigatorSettings
 from geofix.logs import read_mission
 from geofix.logs.gridmap import grid_log
 from geofix.maps import load_grid
 from geofix.maps.gridding import load_map_error
-from geofix.navigator import Navigator
+from geofix.navigator import Navigator, NavigatorSettings
 from geofix.replay import replay_inputs
 
 CELL_M = 50.0

@@ -6,9 +6,9 @@ import pytest
 from geofix import InputError, Navigator
 from geofix.errors import ConfigError, MemoryBudgetError
 from geofix.filters.base import observations
-from geofix.filters.online import NavigatorSettings
 from geofix.logs import read_exported
 from geofix.methods import parse_method_spec
+from geofix.navigator import NavigatorSettings
 from geofix.problem import footprint_xy
 from geofix.replay import ReplayInput, drive
 from geofix.sim.export import export_trials, load_exported

@@ -26,9 +26,9 @@ import numpy as np
 
 from geofix.conventions import PHYSICAL_LIMITS
 from geofix.errors import ConfigError, GeofixWarning
-from geofix.filters.online import Estimate
 from geofix.logs.mission import Mission
 from geofix.maps.grid import Grid
+from geofix.navigator import Estimate
 
 DEFAULT_INS = {"velocity_error_m_s": 0.05, "heading_error_deg": 0.05, "gyro_bias_deg_h": 0.01}
 """INS numbers simulated on a GNSS track when no scenario is given (a navigation-grade

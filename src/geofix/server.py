@@ -24,7 +24,7 @@ Replies: ``{"ok": true, "type": ..., "t", "x", "y", "cov": [[..], [..]], "status
 ``status`` ``converged`` only once the filter's claim is consistent with its pings --
 never after one ping -- and, while ``lost``, ``x``, ``y`` and ``cov`` are the INS
 fallback, the navigation plus the last good offset with the covariance grown since; the
-rules are those of :mod:`geofix.filters.online`;
+rules are those of :mod:`geofix.navigator`;
 ``{"ok": true, "type": "config", "method": spec}`` to a ``config``), or
 ``{"ok": false, "error": "one line naming the problem"}`` (a refused ``config`` leaves
 the connection's navigator as it was). A malformed or out-of-order message, or one

@@ -93,8 +93,7 @@ def test_a_negative_lag_is_refused(missions):
 
 
 def test_the_navigator_undoes_the_lag_ping_by_ping_as_the_campaign_does(missions):
-    from geofix.filters.online import NavigatorSettings
-    from geofix.navigator import Navigator
+    from geofix.navigator import Navigator, NavigatorSettings
 
     grid, pairs = missions
     lagged, _ = pairs[1]

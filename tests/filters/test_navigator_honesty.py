@@ -9,10 +9,10 @@ import pytest
 
 from geofix import Navigator
 from geofix.errors import ConfigError
-from geofix.filters.online import NavigatorSettings, normalised_move
 from geofix.filters.pmf import Pmf
 from geofix.logs.mission import Mission
 from geofix.maps import fractal_terrain
+from geofix.navigator import NavigatorSettings, normalised_move
 from geofix.problem import footprint_xy
 from geofix.replay import converged_nees, nees, replay
 

@@ -15,9 +15,9 @@ from geofix.filters.nuisance import (
     read_at_points,
     representation_std,
 )
-from geofix.filters.online import NavigatorSettings
 from geofix.maps.grid import Grid
 from geofix.methods import parse_method_spec
+from geofix.navigator import NavigatorSettings
 
 
 def _grid(values: np.ndarray, cell: float = 10.0) -> Grid:

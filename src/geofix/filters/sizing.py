@@ -127,7 +127,7 @@ def filter_size(filt, settings=None, grid: Grid | None = None, beams: int | None
     -------
     FilterSize or None
     """
-    from geofix.filters.online import NavigatorSettings
+    from geofix.filters.loop import FilterSettings as NavigatorSettings
 
     family = filter_points(filt)
     if family is None:

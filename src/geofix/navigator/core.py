@@ -1,0 +1,687 @@
+"""``geofix.Navigator``: an online terrain-aided navigator around any recursive filter.
+
+Usage (``grid`` a :class:`~geofix.maps.grid.Grid`; positions in metres, headings in
+radians)::
+
+    nav = Navigator(grid, method="pmf", settings={"noise_std": 2.0}, seed=1)
+    nav.init(t=0.0, position=(x0, y0), sigma_m=500.0)
+    nav.motion(t, position=(x, y), heading=psi)       # the INS pose
+    est = nav.measure(t, beams)                       # (b, 3) across_m, along_m, value
+    est.position, est.covariance, est.mle, est.status, est.nis
+
+The method is any registered recursive filter by name or spec (``"pmf"``, ``"pf"``,
+``"sitan"``, ``"pmf:points=41"``, and every filter added to the registry later on the
+same per-step protocol). The filters on the INS error state (``"mpf"``,
+``"pmf:model=errstate"``) also need the INS error model, ``ins_model`` (an
+:class:`~geofix.nav.errstate.InsErrorModel`, e.g. ``InsErrorModel.from_specs(spec)`` of
+a scenario's ``ins:`` block); its position prior is replaced by ``init``'s sigma.
+
+The navigator drives the filter loop of the filters layer
+(:class:`geofix.filters.loop.FilterStepper`: the filter, its state and the measurement
+model's nuisance states, as every campaign trial runs it) and adds around it:
+
+- **the two steps** -- :meth:`Navigator.predict` (a :class:`~geofix.filters.base.Motion`)
+  and :meth:`Navigator.update` (an :class:`~geofix.filters.base.Observation`, returns an
+  :class:`~geofix.navigator.estimate.Estimate`); a replay or a server connection calls
+  them through the raw-input methods :meth:`~Navigator.motion` and
+  :meth:`~Navigator.measure`, whose inputs are checked first
+  (:mod:`geofix.navigator.intake`);
+- **gating** -- a ping whose per-beam NIS exceeds ``gate_nis`` (after the first accepted
+  ping) is rejected as an outlier and not folded in;
+- **status** -- ``initialising`` until a ping is accepted, then ``converging``, then
+  ``converged`` once the posterior is small, its mean and mode agree, it is close to a
+  Gaussian (the KL divergence of the grid's or particles' posterior to the Gaussian of
+  the same mean and covariance below ``converge_kl_nats``, the convergence test of
+  MBARI's TRN, Meduna 2011; :mod:`geofix.filters.convergence`) and the filter's claim is
+  consistent with its pings (:meth:`Navigator.consistency`,
+  :mod:`geofix.navigator.health`);
+- **lost and re-initialisation** (TRN's rules, :mod:`geofix.navigator.health`) -- while
+  lost (from the loss until the filter is ``converged`` again) the reported estimate is
+  the INS fallback (:meth:`Navigator.fallback`), the navigation plus the last good offset
+  with the covariance grown since; with ``reinit`` the filter is re-initialised around
+  it with its largest 1-sigma (at least the init sigma);
+- **the common offset** -- learnt from multibeam pings only while converged
+  (:mod:`geofix.navigator.offset`).
+
+All randomness goes through the one generator of the seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from geofix.errors import ConfigError, InputError, MatchError
+from geofix.filters.base import Motion, Observation
+from geofix.filters.convergence import posterior_kl
+from geofix.filters.loop import FilterSettings, FilterStepper
+from geofix.filters.sizing import FilterSize, check_filter_budget, filter_size
+from geofix.maps.grid import Grid
+from geofix.measurement import map_error_variance
+from geofix.navigator.estimate import Estimate, estimate_fields, mode_position
+from geofix.navigator.health import Health, innovation_nis
+from geofix.navigator.intake import (
+    PingIntake,
+    check_start_box,
+    finite,
+    min_beams,
+    motion_between,
+    point,
+)
+from geofix.navigator.offset import OffsetEstimator
+from geofix.navigator.settings import NavigatorSettings
+from geofix.problem import MatchProblem
+
+
+def start_problem(
+    grid: Grid, t: float, position, sigma_m: float, heading: float, ins_model=None
+) -> MatchProblem:
+    """A one-sample :class:`MatchProblem` carrying a prior for ``filter.initialize``.
+
+    ``measured`` holds one placeholder reading of 0 (filters check that a problem has
+    some finite reading; :meth:`Navigator.init` never updates with it). An
+    ``ins_model`` (:class:`~geofix.nav.errstate.InsErrorModel`) is carried with its
+    position prior replaced by the start's: no fixed offset, per-axis ``sigma_m``; its
+    velocity, tilt, bias and heading-error prior are kept. A filter on it builds each
+    later step from the motion (:func:`geofix.nav.errstate.step_matrices`).
+    """
+    if ins_model is not None:
+        ins_model = replace(ins_model, initial_offset=(0.0, 0.0), initial_std=float(sigma_m))
+    return MatchProblem(
+        grid=grid,
+        indicated=np.asarray(position, dtype=float).reshape(1, 2),
+        heading=np.array([float(heading)]),
+        offsets=np.zeros((1, 2)),
+        measured=np.zeros((1, 1)),
+        sigma_position=np.array([float(sigma_m)]),
+        times=np.array([float(t)]),
+        ins_model=ins_model,
+    )
+
+
+class Navigator:
+    """An online navigator on ``grid`` with a named recursive filter.
+
+    Feed it navigation records (:meth:`motion`) and pings (:meth:`measure`) after a
+    start (:meth:`init`); each returns an :class:`~geofix.navigator.estimate.Estimate`
+    (:meth:`estimate` gives the current one, :meth:`fallback` what the INS alone tells).
+    :meth:`predict` and :meth:`update` are the two steps underneath, on a
+    :class:`~geofix.filters.base.Motion` and an :class:`~geofix.filters.base.Observation`.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map (metric frame).
+    method : str or filter
+        A registered recursive method name or spec (``"pmf"``, ``"pf:particles=2000"``,
+        ``"sitan"``, ...), or a filter instance.
+    settings : NavigatorSettings or dict, optional
+        The navigator's rules (:class:`~geofix.navigator.settings.NavigatorSettings`).
+    seed : int or numpy.random.Generator
+        Seed of the generator behind every random draw (same seed, same inputs: the
+        same estimates, bit for bit).
+    map_error : Grid, optional
+        Per-cell map standard deviation (the ``z_std`` layer of ``geofix grid``), added
+        as map-error variance to the measurement variance at each beam's footprint.
+    ins_model : InsErrorModel, optional
+        The INS error model (:mod:`geofix.nav.errstate`): required by a filter on the INS
+        error state (``mpf``, ``pmf:model=errstate``), ignored by the others; see
+        :func:`start_problem` for its prior.
+
+    Raises
+    ------
+    ConfigError
+        Unknown method or setting, a batch matcher instead of a recursive filter, or a
+        filter that needs an INS error model without one.
+    MemoryBudgetError
+        The filter would exceed the memory budget (:mod:`geofix.filters.sizing`).
+    """
+
+    def __init__(
+        self, grid: Grid, method="pmf", settings=None, seed=0, map_error=None, ins_model=None
+    ) -> None:
+        filt = _parse_method(method)
+        if not getattr(filt, "recursive", False):
+            raise ConfigError(
+                f"navigator: method {getattr(filt, 'name', method)!r} is a batch matcher; "
+                "use a recursive filter (pmf, pf, sitan, ...)"
+            )
+        if getattr(filt, "needs_ins_model", False) and ins_model is None:
+            raise ConfigError(
+                f"navigator: method {method if isinstance(method, str) else filt.name!r} "
+                "needs an INS error model (ins_model; for geofix replay / serve: "
+                "--ins SCENARIO.yaml with an ins: block)"
+            )
+        if not isinstance(settings, NavigatorSettings):
+            settings = NavigatorSettings.from_dict(settings)
+        check_filter_budget(filt, settings.filter_settings(), grid)  # before it holds a point
+        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        self.method = method if isinstance(method, str) else filt.name
+        self.settings = settings.for_map_model(getattr(filt, "map_model", "exact"))
+        self._stepper = FilterStepper(filt, grid, self.settings.filter_settings(), rng)
+        self.map_error = map_error
+        self.ins_model = ins_model
+        self._intake = PingIntake(self.settings)
+        self._health = Health(self.settings, self._stepper.grid)
+        self._offset = OffsetEstimator(self._stepper)
+        self._pose: tuple[float, np.ndarray, float] | None = None  # (t, position (2,), heading)
+        self._t_last: float | None = None
+        self._t_accepted = 0.0
+        self._pings = self._rejected = self._reinits = self._accepted_count = 0
+        self._last: Estimate | None = None
+
+    # ------------------------------------------------------------------ the filter
+    @property
+    def filter(self):
+        """The recursive filter (a filter of the per-step protocol)."""
+        return self._stepper.filter
+
+    @property
+    def grid(self) -> Grid:
+        """The map, read with the settings' ``interpolation``."""
+        return self._stepper.grid
+
+    @property
+    def rng(self):
+        """The generator behind every random draw."""
+        return self._stepper.rng
+
+    @property
+    def state(self):
+        """The filter's current state (None before :meth:`init` or :meth:`start`)."""
+        return self._stepper.state
+
+    @state.setter
+    def state(self, state) -> None:
+        self._stepper.state = state
+
+    @property
+    def noise_factor(self) -> float:
+        """The residual scale's factor on the declared measurement variance (1: none)."""
+        return self._stepper.noise_factor
+
+    # ------------------------------------------------------------------ the two steps
+    def start(self, problem: MatchProblem) -> None:
+        """Initialise from a problem's prior (its first sample), as a campaign trial does.
+
+        Parameters
+        ----------
+        problem : MatchProblem
+            Its first sample's indicated position, heading, time and ``sigma_position``
+            make the prior.
+        """
+        self._stepper.start(problem)
+        t0 = float(problem.times[0])
+        self._pose = (t0, np.asarray(problem.indicated[0], float), float(problem.heading[0]))
+        self._t_last = self._t_accepted = t0
+        self._health.restart(float(problem.sigma_position[0]))
+        self._last = None
+
+    def predict(self, motion: Motion) -> None:
+        """Apply the INS motion of one step to the posterior.
+
+        Parameters
+        ----------
+        motion : Motion
+            The displacement (metres), its duration (seconds) and process variance (m^2).
+
+        Raises
+        ------
+        InputError
+            Before :meth:`init`.
+        """
+        self._require_started()
+        self._stepper.predict(motion)
+        self._health.moved(motion.process_var)
+        self._last = None
+
+    def update(self, obs: Observation, t: float | None = None) -> Estimate:
+        """Fold in one ping (gated by its NIS), update the status, re-initialise if lost.
+
+        Parameters
+        ----------
+        obs : Observation
+            The ping, placed at the current pose.
+        t : float, optional
+            Its time, seconds (default: the time of the last pose).
+
+        Returns
+        -------
+        Estimate
+            The estimate after the ping (the INS fallback while lost).
+
+        Raises
+        ------
+        InputError
+            Before :meth:`init`.
+        """
+        pose = self._require_started()
+        t = pose[0] if t is None else float(t)
+        self._pings += 1
+        s = self.settings
+        nis = float("nan")
+        relative, obs = self._stepper.weigh(obs, t)
+        accepted = int(np.isfinite(obs.values).sum()) >= min_beams(s, obs.values.size)
+        prior = self.filter.estimate(self.state) if accepted else None
+        judges_nis = s.converge_nis_max is not None or s.converge_nis_min is not None
+        wants_nis = s.gate_nis is not None or s.nis_window > 0
+        if prior is not None and (wants_nis or (s.report_status and judges_nis)):
+            mean, cov = prior
+            nis = innovation_nis(self.grid, mean, cov, obs)
+            gated = self._accepted_count > 0
+            if s.gate_nis is not None and gated and np.isfinite(nis) and nis > s.gate_nis:
+                accepted = False
+                self._rejected += 1
+            if np.isfinite(nis) and s.nis_window > 0:
+                self._health.nis.append(nis)
+        # the ping judges the filter's claim when it came to a posterior already small
+        # and resolved (the NIS against a wide or unresolved one is no test of the claim)
+        judged = (
+            accepted
+            and s.report_status
+            and prior is not None
+            and self._health.small(prior[1])
+            and self._health.resolved(self.state)
+        )
+        if accepted:
+            accepted = self._stepper.fold(obs)
+            self._rejected += int(not accepted)  # a step that left a non-finite estimate
+        if accepted:
+            self._accepted_count += 1
+            self._t_accepted = t
+            self._offset.learn(relative, obs, prior)
+        beams = int(np.isfinite(obs.values).sum())
+        estimate = self._describe(t, nis, accepted, judged, beams)
+        self._offset.judged(estimate.status)
+        if accepted and s.report_status:
+            offset = estimate.position - pose[1]
+            entry = (nis, beams, offset, estimate.covariance, self._health.process_var, judged)
+            self._health.window.append(entry)
+        self._health.pinged()
+        reason = self._health.lost_reason(t, self._t_accepted, self._covariance)
+        if reason is not None:
+            if reason == "nis" and accepted:  # not an outlier the gate already refused
+                self._health.forget_good_fix()
+            estimate = self._lose(estimate, t)  # a ping that loses the filter is no good fix
+        elif estimate.status == "converged":
+            self._health.remember_good(estimate.position, estimate.covariance, pose[1])
+        elif self._health.lost:
+            estimate = self._fallback(estimate)
+        self._last = estimate
+        return estimate
+
+    # ------------------------------------------------------------------ raw inputs
+    def init(self, t: float, position, sigma_m: float, heading: float = 0.0) -> Estimate:
+        """Start (or restart) at ``position`` with a per-axis prior ``sigma_m``.
+
+        Parameters
+        ----------
+        t : float
+            Time, seconds.
+        position : array_like
+            ``(2,)`` start position ``(x, y)``, metres.
+        sigma_m : float
+            Per-axis 1-sigma of the start, metres (positive).
+        heading : float
+            Heading, radians clockwise from north.
+
+        Returns
+        -------
+        Estimate
+            The estimate of the fresh prior (status ``initialising``).
+
+        Raises
+        ------
+        InputError
+            Non-finite values, a non-positive sigma, or a start box mostly off valid map
+            data (start-up gating).
+        """
+        t, heading = finite(t, "t"), finite(heading, "heading")
+        position = point(position, "position")
+        sigma_m = finite(sigma_m, "sigma_m")
+        if sigma_m <= 0:
+            raise InputError(f"init: sigma_m must be positive, got {sigma_m:g}")
+        check_start_box(self.grid, position, sigma_m, self.settings.min_start_share)
+        prior = start_problem(self.grid, t, position, sigma_m, heading, self.ins_model)
+        try:
+            self._stepper.start(prior)
+        except MatchError as exc:
+            raise InputError(f"init: {exc}") from None
+        self._pose = (t, position, heading)
+        self._t_last = self._t_accepted = t
+        self._health.restart(sigma_m)
+        self._pings = self._rejected = self._reinits = self._accepted_count = 0
+        self._last = None
+        return self.estimate()
+
+    def motion(
+        self, t: float, position, heading: float, process_var: float | None = None
+    ) -> Estimate:
+        """A navigation record: the INS-indicated position and heading.
+
+        The posterior moves by the change of the indicated position since the previous
+        record.
+
+        Parameters
+        ----------
+        t : float
+            Time, seconds (not before the previous input).
+        position : array_like
+            ``(2,)`` indicated position ``(x, y)``, metres.
+        heading : float
+            Indicated heading, radians clockwise from north.
+        process_var : float, optional
+            Per-axis variance the position error gains since the previous record, m^2
+            (default ``process_noise_m2_s`` times the elapsed time).
+
+        Returns
+        -------
+        Estimate
+            The estimate after the motion (``lost`` after an outage).
+
+        Raises
+        ------
+        InputError
+            Before :meth:`init`, out of time order, non-finite, or faster than
+            ``max_speed_m_s``.
+        """
+        t_prev, pos_prev, _ = self._require_started()
+        t, heading = finite(t, "t"), finite(heading, "heading")
+        position = point(position, "position")
+        if t < t_prev or (self._t_last is not None and t < self._t_last):
+            raise InputError(f"nav at t = {t:g} s is before the previous input ({self._t_last:g})")
+        step = motion_between(self.settings, (t_prev, pos_prev), t, position, process_var)
+        self.predict(step)
+        self._pose = (t, position, heading)
+        self._t_last = t
+        if self._health.grace == 0 and self._health.outage(t, self._t_accepted):
+            self._last = self._lose(self._describe(t, float("nan"), False), t)
+        return self.estimate()
+
+    def measure(self, t: float, beams, noise_var=None, roll=None, pitch=None) -> Estimate:
+        """A ping: rows ``(across_m, along_m, value)`` or ``(across_m, along_m, down_m, value)``.
+
+        Values may be NaN (missing beam); offsets must be finite. The ping is placed with
+        the last navigation record, which must be within ``max_pose_gap_s``.
+
+        Parameters
+        ----------
+        t : float
+            Ping time, seconds (not before the previous input).
+        beams : array_like
+            ``(b, 3)``: level-frame across / along footprint offsets (metres, as a sonar
+            that corrects for attitude reports them) and measured values (map units);
+            ``(b, 4)``: body-frame beam vectors ``(across, along, down)`` from the sensor
+            (metres), levelled by ``roll`` and ``pitch``, and the values.
+        noise_var : float or array_like, optional
+            Measurement variance, map units squared, scalar or ``(b,)``; default
+            ``noise_std^2``. The map's per-cell error variance is added to it.
+        roll, pitch : float, optional
+            Vehicle attitude at the ping, radians (roll positive starboard down, pitch
+            positive bow up; :mod:`geofix.conventions`); None is 0 for body-frame beams.
+            They level the body-frame beams and the mounting offset.
+
+        Returns
+        -------
+        Estimate
+            The estimate after the ping.
+
+        Raises
+        ------
+        InputError
+            Before :meth:`init`, out of order, far from the last pose, malformed beams,
+            or a roll / pitch not finite or beyond +-90 degrees.
+        """
+        t_pose, position, heading = self._require_started()
+        t = finite(t, "t")
+        if self._t_last is not None and t < self._t_last:
+            raise InputError(f"ping at t = {t:g} s is before the previous input ({self._t_last:g})")
+        gap = self.settings.max_pose_gap_s
+        if gap is not None and abs(t - t_pose) > gap:
+            raise InputError(
+                f"ping at t = {t:g} s is {abs(t - t_pose):.3g} s from the last nav "
+                f"(at most {gap:g} s)"
+            )
+        offsets, values, var = self._intake.read(t, beams, noise_var, roll, pitch)
+        if self.map_error is not None:
+            mean, _ = self.filter.estimate(self.state)
+            var = var + map_error_variance(self.map_error, mean, heading, offsets)
+        obs = Observation(values, position, heading, offsets, var, self._pings)
+        self._t_last = t
+        return self.update(obs, t)
+
+    def estimate(self) -> Estimate:
+        """The current estimate (the last one returned, or one of the current state).
+
+        Returns
+        -------
+        Estimate
+            The estimate (the INS fallback while lost).
+
+        Raises
+        ------
+        InputError
+            Before :meth:`init`.
+        """
+        t_pose = self._require_started()[0]
+        if self._last is None:
+            t = self._t_last if self._t_last is not None else t_pose  # both set by init/start
+            described = self._describe(t, float("nan"), False)
+            self._last = self._fallback(described) if self._health.lost else described
+        return self._last
+
+    def fallback(self) -> tuple[np.ndarray, np.ndarray]:
+        """What the INS alone tells since the last good fix.
+
+        The current navigation plus the last good offset (estimate minus navigation at the
+        last ``converged`` ping; zero before the first), and the last good covariance
+        (the init prior before the first) grown by the process variance of every motion
+        since. It is the estimate reported while ``lost``.
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            ``(position (2,), covariance (2, 2))``, metres and m^2.
+
+        Raises
+        ------
+        InputError
+            Before :meth:`init`.
+        """
+        return self._health.fallback(self._require_started()[1])
+
+    def consistency(
+        self, mean, cov, nis: float = float("nan"), judged: bool = False, beams: int = 1
+    ) -> str | None:
+        """Why the filter's claim is not (yet) consistent with its pings, or None.
+
+        The terms of :meth:`geofix.navigator.health.Health.consistency` (``"pings"``,
+        ``"nis"``, ``"shift"``, ``"points"``, ``"scale"``, ``"ins"``) against the current
+        navigation, state and residual scale.
+
+        Parameters
+        ----------
+        mean : array_like
+            ``(2,)`` the current posterior mean, metres.
+        cov : array_like
+            ``(2, 2)`` the current posterior covariance, m^2.
+        nis : float
+            Per-beam NIS of the current ping (NaN: none).
+        judged : bool
+            The current ping was folded in and came to a small, resolved posterior.
+        beams : int
+            Valid beams of the current ping.
+
+        Returns
+        -------
+        str or None
+            The first failed term, or None when all pass.
+
+        Raises
+        ------
+        InputError
+            Before :meth:`init`.
+        """
+        navigation = self._require_started()[1]
+        return self._health.consistency(
+            mean, cov, navigation, self.state, self.noise_factor, nis, judged, beams
+        )
+
+    # ------------------------------------------------------------------ rules
+    def _describe(
+        self, t: float, nis: float, accepted: bool, judged: bool = False, beams: int = 1
+    ) -> Estimate:
+        """The estimate of the current state: status, MLE and KL as the settings ask."""
+        mean, cov = self._stepper.estimate()
+        report = self.settings.report_status
+        mle = mode_position(self.filter, self.state) if report else mean.copy()
+        status = "initialising" if self._accepted_count == 0 else "converging"
+        kl = float("nan")
+        if (
+            report
+            and status == "converging"
+            and self._health.converged(mean, cov, mle)
+            and self.consistency(mean, cov, nis, judged, beams) is None
+        ):
+            status = "converged"
+            if self.settings.converge_kl_nats is not None:
+                kl = posterior_kl(self.state)
+                if np.isfinite(kl) and kl > self.settings.converge_kl_nats:
+                    status = "converging"
+        return Estimate(
+            t=float(t),
+            position=mean,
+            covariance=cov,
+            mle=mle,
+            status=status,
+            nis=nis,
+            accepted=accepted,
+            pings=self._pings,
+            rejected=self._rejected,
+            reinits=self._reinits,
+            kl_nats=kl,
+            **self._offset.fields(),
+        )
+
+    def _covariance(self) -> np.ndarray:
+        """The posterior's ``(2, 2)`` covariance, m^2."""
+        return self.filter.estimate(self.state)[1]
+
+    def _fallback(self, estimate: Estimate) -> Estimate:
+        """``estimate`` with the INS fallback's position and covariance, status ``lost``."""
+        position, cov = self.fallback()
+        return Estimate(
+            **{
+                **estimate_fields(estimate),
+                "position": position,
+                "covariance": cov,
+                "mle": position.copy(),
+                "status": "lost",
+                "kl_nats": float("nan"),
+            }
+        )
+
+    def _lose(self, estimate: Estimate, t: float) -> Estimate:
+        """Report ``lost`` (the INS fallback); re-initialise the filter around it.
+
+        The restart sigma is the fallback's largest 1-sigma, at least the init sigma.
+        """
+        self._health.lost = True
+        lost = self._fallback(estimate)
+        if not self.settings.reinit:
+            return lost
+        heading = self._require_started()[2]
+        sigma = max(lost.sigma_m, self._health.prior_sigma)
+        try:
+            self._stepper.start(
+                start_problem(self.grid, t, lost.position, sigma, heading, self.ins_model)
+            )
+        except MatchError:
+            return lost  # the restart box is off the map: keep the old posterior, stay lost
+        self._reinits += 1
+        self._accepted_count = 0
+        self._t_accepted = t
+        self._health.reinitialised(sigma)
+        return Estimate(**{**estimate_fields(lost), "reinits": self._reinits})
+
+    def _require_started(self) -> tuple[float, np.ndarray, float]:
+        """The last pose ``(t, position (2,), heading)``; InputError before any init."""
+        if self.state is None or self._pose is None:
+            raise InputError("no init yet: send init (t, x, y, sigma_m) first")
+        return self._pose
+
+
+def _parse_method(method):
+    """The filter of a method spec, or ``method`` itself when it is a filter instance."""
+    from geofix.methods import parse_method_spec
+
+    return parse_method_spec(method) if isinstance(method, str) else method
+
+
+def _filter_settings(settings) -> FilterSettings:
+    """The measurement-model part of navigator settings (a mapping or None: checked)."""
+    if not isinstance(settings, NavigatorSettings):
+        settings = NavigatorSettings.from_dict(settings)
+    return settings.filter_settings()
+
+
+def method_size(method, settings=None, grid: Grid | None = None, beams=None) -> FilterSize | None:
+    """:func:`geofix.filters.sizing.filter_size` of a method spec or filter instance.
+
+    Parameters
+    ----------
+    method : str or filter
+        ``"pf:particles=2000"``, or a filter.
+    settings : NavigatorSettings or dict, optional
+        The navigator's settings.
+    grid : Grid, optional
+        The map (for the representation-error layer of ``map_model`` other than exact).
+    beams : int, optional
+        Most beams of a ping.
+
+    Returns
+    -------
+    FilterSize or None
+        None for a filter that is not sized (``sitan``, ``sitan-bank``).
+
+    Raises
+    ------
+    ConfigError
+        An unknown method or setting.
+    """
+    return filter_size(_parse_method(method), _filter_settings(settings), grid, beams)
+
+
+def check_method_budget(
+    method, settings=None, grid: Grid | None = None, beams=None
+) -> FilterSize | None:
+    """:func:`geofix.filters.sizing.check_filter_budget` of a method spec or filter.
+
+    Parameters
+    ----------
+    method : str or filter
+        ``"pf:particles=2000"``, or a filter.
+    settings : NavigatorSettings or dict, optional
+        The navigator's settings.
+    grid : Grid, optional
+        The map.
+    beams : int, optional
+        Most beams of a ping.
+
+    Returns
+    -------
+    FilterSize or None
+        The size, None for a filter that is not sized.
+
+    Raises
+    ------
+    ConfigError
+        An unknown method or setting.
+    MemoryBudgetError
+        The filter would exceed the memory budget (the message gives the estimate).
+    """
+    return check_filter_budget(_parse_method(method), _filter_settings(settings), grid, beams)
+
+
+__all__ = ["Navigator", "check_method_budget", "method_size", "start_problem"]
