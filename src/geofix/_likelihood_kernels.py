@@ -78,9 +78,9 @@ def _read_beam_inside(flat, nx, cols, rows, n, bc, br, first, weights, out):  # 
     1``): there the stencil is the same (truncation is ``int``'s for ``c >= 0``) and so is
     every operation, without checks. Two loops: the first (stencil corners and weights,
     arithmetic only) vectorises; the second reads through unsigned flat indices, which
-    carry no negative-index wraparound. Together about 2 ns a read on 33 beams x 61
-    nodes, 2.6 times faster than the checked :func:`~geofix.maps.mapread.bilinear_at`
-    (``benchmarks/bench_map_reads.py``). ``first`` ``(>= n,)`` uint64 and ``weights``
+    carry no negative-index wraparound. Its speed against the checked
+    :func:`~geofix.maps.mapread.bilinear_at` is measured by
+    ``benchmarks/bench_map_reads.py``. ``first`` ``(>= n,)`` uint64 and ``weights``
     ``(2, >= n)`` are scratch.
     """
     for i in range(n):
