@@ -102,7 +102,34 @@ MAX_TRIALS = 1_000_000
 
 
 class Scenario(Strict):
-    """A validated scenario. Build with :func:`load_scenario` or ``Scenario(**dict)``."""
+    """A validated scenario. Build with :func:`load_scenario` or ``Scenario(**dict)``.
+
+    Parameters
+    ----------
+    name : str
+        The scenario's name (non-blank), used in outputs.
+    map : MapSpec
+        The map the sensor reads: a file or ``builtin:NAME``, its variable, field kind,
+        geographic region cut and resampling to metres.
+    track : TrackSpec
+        The true track: start, heading, speed, sampling interval, samples, legs, turns.
+    sensor : SensorSpec
+        The field sensor (single-beam, multibeam or gravimeter) and its noise.
+    ins : InsSpec
+        The INS datasheet: initial error, velocity and heading errors, gyro and
+        accelerometer biases and noises.
+    dvl : DvlSpec, optional
+        A Doppler velocity log aiding the INS (None: free inertial).
+    trials : int
+        Number of Monte Carlo trials (1 to :data:`MAX_TRIALS`).
+    seed : int
+        Seed of every trial's generator (trial ``i`` draws from ``[seed, i]``).
+    seabed : SeabedSpec, optional
+        How the prior map the methods get differs from the field the sensor reads
+        (:mod:`geofix.sim.seabed`; None: the map is the seabed).
+    base_dir : str
+        Folder a relative ``map.path`` is read from (not part of the file).
+    """
 
     name: str
     map: MapSpec
@@ -147,7 +174,28 @@ class Scenario(Strict):
 def scenario_from_dict(
     data: dict, base_dir: str | Path = ".", source: str = "scenario"
 ) -> Scenario:
-    """Validate a scenario mapping; errors name the bad key."""
+    """Validate a scenario mapping; errors name the bad key.
+
+    Parameters
+    ----------
+    data : dict
+        The scenario's keys (those of a scenario file, :mod:`geofix.sim.scenario`).
+    base_dir : str or pathlib.Path
+        Folder a relative ``map.path`` is read from.
+    source : str
+        What the mapping came from, the prefix of every error message.
+
+    Returns
+    -------
+    Scenario
+        The validated scenario.
+
+    Raises
+    ------
+    ConfigError
+        ``data`` is not a mapping, or a key is unknown (with the closest known key when
+        one is close) or has a bad value; one line naming every bad key.
+    """
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping at the top level")
     try:
@@ -158,6 +206,20 @@ def scenario_from_dict(
 
 def with_overrides(scenario: Scenario, trials: int | None = None, seed: int | None = None):
     """The scenario with ``trials`` and/or ``seed`` replaced (the CLI's ``--trials``/``--seed``).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario to change.
+    trials : int, optional
+        Number of trials (None: keep the scenario's).
+    seed : int, optional
+        Seed of every trial's generator (None: keep the scenario's).
+
+    Returns
+    -------
+    Scenario
+        A new scenario; ``scenario`` itself is unchanged.
 
     Raises
     ------

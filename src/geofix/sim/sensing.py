@@ -26,7 +26,22 @@ def measure_with_unlagged(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Sensor readings along a true track, and the same readings before the lag.
 
-    Parameters are those of :func:`measure`.
+    Parameters
+    ----------
+    grid : Grid
+        The field the sensor sees (read with :data:`TRUTH_READ`, bilinear).
+    truth : array_like
+        ``(n, 2)`` true positions, metres.
+    heading : array_like
+        ``(n,)`` true heading, radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres.
+    spec : SensorSpec
+        Noise, map error and (gravimeter) lag.
+    rng : numpy.random.Generator
+        Source of the noise (sensor noise first, then map error).
+    times : array_like, optional
+        ``(n,)`` sample times, seconds; needed by a gravimeter with ``lag_s > 0``.
 
     Returns
     -------

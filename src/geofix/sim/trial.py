@@ -111,9 +111,21 @@ class Trial:
     def problem(self, grid: Grid, part: slice = slice(None), indicated=None) -> MatchProblem:
         """The :class:`MatchProblem` for samples ``part``.
 
-        ``indicated`` replaces the free INS track for that part (after a reset to an
-        earlier fix, say); by default the free INS track is used. The problem's map is
-        the trial's ``prior_map`` when it has one, else ``grid``.
+        Parameters
+        ----------
+        grid : Grid
+            The map the method matches against; the trial's ``prior_map`` replaces it
+            when the trial has one.
+        part : slice
+            The samples of the problem (default: all).
+        indicated : array_like, optional
+            ``(m, 2)`` positions, metres, replacing the free INS track over ``part``
+            (after a reset to an earlier fix, say); by default the free INS track.
+
+        Returns
+        -------
+        MatchProblem
+            What a method is handed: never the truth.
         """
         ind = self.indicated[part] if indicated is None else np.asarray(indicated, dtype=float)
         dvl = None if self.dvl_velocity is None else np.asarray(self.dvl_velocity)[part]
