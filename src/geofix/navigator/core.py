@@ -85,6 +85,26 @@ def start_problem(
     position prior replaced by the start's: no fixed offset, per-axis ``sigma_m``; its
     velocity, tilt, bias and heading-error prior are kept. A filter on it builds each
     later step from the motion (:func:`geofix.nav.errstate.step_matrices`).
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    t : float
+        Start time, seconds.
+    position : array_like
+        ``(2,)`` start position, metres.
+    sigma_m : float
+        Per-axis 1-sigma of the start, metres.
+    heading : float
+        Heading, radians clockwise from north.
+    ins_model : InsErrorModel, optional
+        The INS error model of a filter on the INS error state.
+
+    Returns
+    -------
+    MatchProblem
+        One sample at ``t``.
     """
     if ins_model is not None:
         ins_model = replace(ins_model, initial_offset=(0.0, 0.0), initial_std=float(sigma_m))

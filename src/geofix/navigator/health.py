@@ -126,6 +126,22 @@ def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
     variance ``obs.bias_var = P`` the residual's covariance is ``diag(v) + P 1 1^T``
     (``v_b = R_b + S_b``) and the NIS is its quadratic form per beam,
     ``(sum r^2 / v - P T^2 / (1 + P S)) / b`` (``S = sum 1 / v``, ``T = sum r / v``).
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    mean : array_like
+        ``(2,)`` posterior mean, metres.
+    cov : array_like
+        ``(2, 2)`` posterior covariance, m^2.
+    obs : Observation
+        The ping (values in map units, variances in map units squared).
+
+    Returns
+    -------
+    float
+        The per-beam NIS (dimensionless).
     """
     points, weights = unscented_points(mean, cov)
     pred = predict_measurements(grid, points, obs.heading, obs.offsets)
@@ -205,7 +221,22 @@ class Health:
 
     # ------------------------------------------------------------------ converged
     def converged(self, mean, cov, mle) -> bool:
-        """Small (:meth:`small`) and the mean within ``converge_mle_m`` of the MLE."""
+        """Small (:meth:`small`) and the mean within ``converge_mle_m`` of the MLE.
+
+        Parameters
+        ----------
+        mean : numpy.ndarray
+            ``(2,)`` posterior mean, metres.
+        cov : numpy.ndarray
+            ``(2, 2)`` posterior covariance, m^2.
+        mle : numpy.ndarray
+            ``(2,)`` posterior mode, metres.
+
+        Returns
+        -------
+        bool
+            The posterior's spread and mean-to-mode distance pass.
+        """
         cell = self.grid.cell_size
         s = self.settings
         mle_max = s.converge_mle_m if s.converge_mle_m is not None else max(10.0, cell)
@@ -395,7 +426,17 @@ class Health:
         self.good_var = 0.0
 
     def remember_good(self, position: np.ndarray, cov: np.ndarray, navigation) -> None:
-        """A converged estimate (metres, m^2) at ``navigation``: the fallback's new start."""
+        """A converged estimate at ``navigation``: the INS fallback's new start.
+
+        Parameters
+        ----------
+        position : numpy.ndarray
+            ``(2,)`` the estimate, metres.
+        cov : numpy.ndarray
+            ``(2, 2)`` its covariance, m^2.
+        navigation : numpy.ndarray
+            ``(2,)`` the navigation (INS) position at the ping, metres.
+        """
         self.lost = False
         self.good_offset = position - navigation
         self.good_cov = np.array(cov, dtype=float)

@@ -189,7 +189,21 @@ class PingIntake:
         return undo_lag_step(values, previous[1], np.exp(-(t - previous[0]) / lag))
 
     def level(self, beams: np.ndarray, roll, pitch) -> tuple[np.ndarray, np.ndarray]:
-        """``(offsets (b, 2), values (b,))``: level footprint offsets and the readings."""
+        """``(offsets (b, 2), values (b,))``: level footprint offsets and the readings.
+
+        Parameters
+        ----------
+        beams : numpy.ndarray
+            ``(b, 3)`` level offsets (metres) and values, or ``(b, 4)`` body-frame beam
+            vectors (metres) and values.
+        roll, pitch : float or None
+            Attitude, radians (None: 0, and level beams are taken as they are).
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            Offsets with the levelled mounting offset, metres, and the values.
+        """
         values = beams[:, -1]
         mount = np.asarray(self.settings.mount_offset_m, dtype=float)
         if beams.shape[1] == 3 and roll is None and pitch is None:
@@ -232,7 +246,22 @@ class PingIntake:
         return np.maximum(var, 1e-12) if var.ndim else max(float(var), 1e-12)
 
     def thin(self, offsets, values, var):
-        """At most ``max_update_beams`` valid beams, evenly spread across the swath."""
+        """At most ``max_update_beams`` valid beams, evenly spread across the swath.
+
+        Parameters
+        ----------
+        offsets : numpy.ndarray
+            ``(b, 2)`` footprint offsets, metres.
+        values : numpy.ndarray
+            ``(b,)`` readings, map units (NaN: missing).
+        var : float or numpy.ndarray
+            Measurement variance, map units squared (one, or ``(b,)``).
+
+        Returns
+        -------
+        tuple
+            The kept offsets, values and variances.
+        """
         limit = self.settings.max_update_beams
         valid = np.flatnonzero(np.isfinite(values))
         if limit is None or valid.size <= limit:
