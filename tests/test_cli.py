@@ -235,3 +235,40 @@ def test_maps_lists_bundled_maps_with_provenance():
     assert result.exit_code == 0
     for name in ("azores", "alaska_gravity", "navo_flat"):
         assert name in result.output
+
+
+def test_progress_phases_print_at_once_without_a_thread(capsys):
+    import threading
+
+    from geofix.console import ProgressBar
+
+    before = threading.active_count()
+    with ProgressBar("demo") as bar:
+        bar.phase("preparing the map")
+        assert threading.active_count() == before  # a campaign may still fork its workers
+        bar(0, 4)
+        bar.phase("late")  # once the bar runs, phases are not printed
+        bar(4, 4)
+    err = capsys.readouterr().err
+    assert "demo: preparing the map..." in err and "late" not in err
+
+
+def test_summary_table_shows_the_crlb_beside_the_rms_error():
+    import io
+
+    from rich.console import Console
+
+    from geofix.console import summary_table
+    from geofix.evaluate.summary import CampaignSummary, MethodStats
+
+    stats = MethodStats(trials=4, mean_error_m=50.0, rms_error_m=61.25, success_rate={"100": 1})
+    summary = CampaignSummary("s", 4, crlb_m=12.5, crlb_track_m=30.0, methods={"pmf": stats})
+    console = Console(file=io.StringIO(), width=80)
+    console.print(summary_table(summary, width=80))
+    text = console.file.getvalue()
+    assert "CRLB on the RMS error: 12.5 m at the end, 30.0 m along the track" in " ".join(
+        text.split()
+    )
+    assert "rms" in text and "61.2" in text
+    no_bound = CampaignSummary("s", 4, methods={"pmf": stats})
+    assert "CRLB" not in str(summary_table(no_bound).title)

@@ -2,8 +2,18 @@
 
 from __future__ import annotations
 
+import math
+
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.markup import escape
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
 
 from geofix.evaluate.summary import CampaignSummary
@@ -11,6 +21,10 @@ from geofix.evaluate.summary import CampaignSummary
 
 class ProgressBar:
     """A rich progress bar on stderr, usable as ``run_campaign(..., progress=bar)``.
+
+    Before the first result, :meth:`phase` prints what is being done (preparing the map,
+    running the first trial), one still line each: no refresh thread runs before the
+    bar, since a campaign forks its workers only while no other thread runs.
 
     Parameters
     ----------
@@ -22,21 +36,31 @@ class ProgressBar:
     Examples
     --------
     >>> with ProgressBar("demo", enabled=False) as bar:
+    ...     bar.phase("preparing the map")
     ...     bar(0, 10)
     ...     bar(10, 10)
     """
 
     def __init__(self, name: str, enabled: bool = True) -> None:
+        self._console = Console(stderr=True)
+        self._name = name
+        self._enabled = enabled
         self._progress = Progress(
             TextColumn("[bold]{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
+            TimeElapsedColumn(),
             TimeRemainingColumn(),
-            console=Console(stderr=True),
+            console=self._console,
             disable=not enabled,
         )
         self._task = self._progress.add_task(name, total=None)
         self._started = False
+
+    def phase(self, what: str) -> None:
+        """Print ``name: what...`` on stderr: a step before the first result (no bar yet)."""
+        if self._enabled and not self._started:
+            self._console.print(f"[bold]{escape(self._name)}[/]: {escape(what)}...")
 
     def __enter__(self) -> ProgressBar:
         return self
@@ -71,11 +95,20 @@ def summary_table(summary: CampaignSummary, width: int | None = None) -> Table:
     Returns
     -------
     rich.table.Table
-        One row per method: trials, failures, mean / std / median / max end-point error
-        and mean along-track error (metres), success rates within 100 m, 1 cell and
-        3 cells (%), mean time per ``match`` call (milliseconds).
+        One row per method: trials, failures, mean / std / median / max / RMS end-point
+        error and mean along-track error (metres), success rates within 100 m, 1 cell and
+        3 cells (%), mean time per ``match`` call (milliseconds). The title carries the
+        Cramér–Rao bound on the end-point RMS error (``crlb_m``), which the ``rms``
+        column is to be read against, and the bound along the track (``crlb_track_m``).
+
+    Examples
+    --------
+    >>> from geofix.evaluate.summary import CampaignSummary, MethodStats
+    >>> s = CampaignSummary("demo", 2, crlb_m=12.34, methods={"pmf": MethodStats(trials=2)})
+    >>> summary_table(s).title
+    'demo: 2 trials, errors in metres; CRLB on the RMS error: 12.3 m at the end'
     """
-    title = f"{summary.scenario}: {summary.trials} trials, errors in metres"
+    title = f"{summary.scenario}: {summary.trials} trials, errors in metres{_bounds(summary)}"
     rows = {
         spec: [cell(stats) for _, cell in _TABLE_COLUMNS] for spec, stats in summary.methods.items()
     }
@@ -95,8 +128,21 @@ def summary_table(summary: CampaignSummary, width: int | None = None) -> Table:
     return table
 
 
+def _bounds(summary: CampaignSummary) -> str:
+    """``"; CRLB on the RMS error: 12.3 m at the end, 9.8 m along the track"`` (Cramér–Rao)."""
+    parts = [
+        f"{value:.1f} m {where}"
+        for value, where in (
+            (summary.crlb_m, "at the end"),
+            (summary.crlb_track_m, "along the track"),
+        )
+        if value is not None and math.isfinite(value)
+    ]
+    return f"; CRLB on the RMS error: {', '.join(parts)}" if parts else ""
+
+
 #: Columns left out first when the table does not fit the terminal (by header).
-_DROP_ORDER = ("track", "std", "≤1 cell", "max", "trials", "≤3 cells", "failed")
+_DROP_ORDER = ("track", "std", "≤1 cell", "max", "trials", "median", "≤3 cells", "failed")
 _METHOD_MIN_WIDTH = 12
 
 
@@ -130,9 +176,10 @@ _TABLE_COLUMNS = (
     ("std", lambda s: _fmt(s.std_error_m)),
     ("median", lambda s: _fmt(s.median_error_m)),
     ("max", lambda s: _fmt(s.max_error_m)),
+    ("rms", lambda s: _fmt(s.rms_error_m)),
     ("track", lambda s: _fmt(s.mean_track_error_m)),
-    ("≤100 m", lambda s: _pct(s.success_rate["100"])),
-    ("≤1 cell", lambda s: _pct(s.success_rate["1c"])),
-    ("≤3 cells", lambda s: _pct(s.success_rate["3c"])),
+    ("≤100 m", lambda s: _pct(s.success_rate.get("100"))),
+    ("≤1 cell", lambda s: _pct(s.success_rate.get("1c"))),
+    ("≤3 cells", lambda s: _pct(s.success_rate.get("3c"))),
     ("ms/call", lambda s: _fmt(s.mean_time_s, 2, 1e3)),
 )
