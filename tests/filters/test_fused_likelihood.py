@@ -11,8 +11,9 @@ from scipy.special import logsumexp
 import geofix
 from geofix.filters import _grid_ops as ops
 from geofix.filters import _particle_kernels as particle_kernels
+from geofix.filters._weights import log_normalised, systematic_resample
 from geofix.filters.base import Observation
-from geofix.filters.pf import Pf, PfState, log_normalised, systematic_resample
+from geofix.filters.pf import Pf, PfState
 from geofix.filters.pmf import Pmf, PmfState, node_field_variance
 from geofix.maps.grid import Grid
 from geofix.measurement import (

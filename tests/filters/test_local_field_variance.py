@@ -13,8 +13,9 @@ from scipy.stats import multivariate_normal
 
 from geofix.errors import ConfigError
 from geofix.filters.base import Observation
+from geofix.filters.likelihood import spread_field_variance
 from geofix.filters.mpf import Mpf
-from geofix.filters.pf import Pf, PfState, particle_log_likelihood, spread_field_variance
+from geofix.filters.pf import Pf, PfState
 from geofix.filters.pmf import Pmf
 from geofix.maps.grid import Grid
 from geofix.measurement import (
@@ -26,6 +27,13 @@ from geofix.measurement import (
 )
 
 BEAMS = 9
+
+
+def particle_log_likelihood(filt, grid, state, obs, rng):
+    """The filter's terrain likelihood of a particle state's particles."""
+    return filt.likelihood.particles(
+        grid, obs, state.particles, state.spacing, state.cell, state.offset, rng
+    )
 
 
 def _map(rng) -> Grid:
@@ -148,7 +156,7 @@ def test_particle_likelihood_follows_the_setting():
     got = particle_log_likelihood(local, grid, coarse, obs, np.random.default_rng(1))
     want = particle_log_likelihood(Pf(), grid, coarse, obs, np.random.default_rng(1))
     np.testing.assert_array_equal(got, want)
-    spread = spread_field_variance(grid, coarse, obs, np.random.default_rng(1))
+    spread = spread_field_variance(grid, coarse.particles, 400.0, obs, np.random.default_rng(1))
     np.testing.assert_allclose(want, hypotheses_log_likelihood(*args[:-1], 4.0 + spread))
     # a dense set (spacing 0): no discretisation noise
     dense = PfState(nodes, weights, grid.cell_size, spacing=0.0)

@@ -8,8 +8,8 @@ from geofix.errors import ConfigError, MatchError
 from geofix.evaluate.crlb import scenario_beam_variance, trial_crlb
 from geofix.evaluate.metrics import end_mahalanobis
 from geofix.evaluate.runner import method_rng, run_trial
+from geofix.filters._weights import stage_fraction
 from geofix.filters.mpf import Mpf, kernel_bandwidth, near_gaussian
-from geofix.filters.pf import stage_fraction
 from geofix.methods import parse_method_spec
 from geofix.sim.scenario import scenario_from_dict
 from geofix.sim.simulate import prepare_map, simulate_trial
@@ -162,7 +162,7 @@ def test_mpf_seeded_runs_repeat(small_mission):
 
 
 def test_marginal_replacement_and_conditional_motion_of_a_gaussian():
-    from geofix.filters._pmf_errstate import conditional_motion, replace_marginal
+    from geofix.filters.motion import conditional_motion, replace_marginal
 
     rng = np.random.default_rng(0)
     a = rng.normal(size=(5, 5))

@@ -6,16 +6,11 @@ import numpy as np
 import pytest
 
 from geofix.errors import ConfigError, MatchError
-from geofix.filters import pf as pf_module
+from geofix.filters import likelihood as likelihood_module
+from geofix.filters._weights import effective_sample_size, systematic_resample
 from geofix.filters.base import Observation
-from geofix.filters.pf import (
-    Pf,
-    PfState,
-    effective_sample_size,
-    field_variance_particles,
-    spread_field_variance,
-    systematic_resample,
-)
+from geofix.filters.likelihood import field_variance_particles, spread_field_variance
+from geofix.filters.pf import Pf, PfState
 from geofix.filters.pmf import Pmf
 from geofix.maps.synthetic import fractal_terrain
 from geofix.methods import parse_method_spec
@@ -174,11 +169,14 @@ def test_field_variance_of_an_all_beam_ping_reads_fewer_particles_and_keeps_its_
     state = PfState(particles, np.full(5000, -np.log(5000)), 10.0, spacing=8.0)
     obs = Observation(np.zeros(432), np.zeros(2), 0.3, offsets, 1.0, 0)
     capped = np.array(
-        [spread_field_variance(grid, state, obs, np.random.default_rng(s)) for s in range(20)]
+        [
+            spread_field_variance(grid, state.particles, 8.0, obs, np.random.default_rng(s))
+            for s in range(20)
+        ]
     )
-    monkeypatch.setattr(pf_module, "FIELD_VARIANCE_SUBSET", 5000)
-    monkeypatch.setattr(pf_module, "FIELD_VARIANCE_DIFFERENCES", 10**9)
-    every = spread_field_variance(grid, state, obs, np.random.default_rng(0))
+    monkeypatch.setattr(likelihood_module, "FIELD_VARIANCE_SUBSET", 5000)
+    monkeypatch.setattr(likelihood_module, "FIELD_VARIANCE_DIFFERENCES", 10**9)
+    every = spread_field_variance(grid, state.particles, 8.0, obs, np.random.default_rng(0))
     assert abs(capped.mean() - every) < 3.0 * capped.std(ddof=1) / np.sqrt(capped.size)
     assert np.all(np.abs(capped / every - 1.0) < 0.05)
 

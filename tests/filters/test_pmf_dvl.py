@@ -4,7 +4,7 @@ import numpy as np
 
 from conftest import gravity_dvl_mission_data
 from geofix.evaluate.runner import method_rng, run_trial
-from geofix.filters._pmf_errstate import dvl_update
+from geofix.filters.motion import dvl_update
 from geofix.methods import parse_method_spec
 from geofix.sim.scenario import scenario_from_dict
 from geofix.sim.simulate import prepare_map, simulate_trial

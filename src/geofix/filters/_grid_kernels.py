@@ -109,8 +109,7 @@ def correlate_separable(p, k0, k1):  # pragma: no cover - compiled
 
     The second pass runs on the transpose, so that it too goes a tap at a time over
     contiguous rows (along the rows themselves a tap's shifted index defeats
-    vectorisation: four times slower on a 61 x 61 grid); each output's additions are in
-    the same order either way.
+    vectorisation); each output's additions are in the same order either way.
     """
     rows = _correlate_rows(p, k0)
     return _correlate_rows(np.ascontiguousarray(rows.T), k1).T

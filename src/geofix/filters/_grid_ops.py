@@ -14,10 +14,22 @@ from __future__ import annotations
 import numpy as np
 
 from geofix.filters import _grid_kernels as grid_kernels
+from geofix.memory import cells_bytes, check_allocation
 
 THREE_TAP_MAX_SIGMA = 0.8
 """Largest kernel sigma (in nodes) for the three-tap kernel; wider ones are sampled Gaussians
 (at 0.8 node both have the exact variance ``sigma^2`` to better than 1e-5)."""
+
+
+#: Float arrays of one value per node a regrid allocates (positions, densities, the
+#: convolution's passes, the offsets): checked against the memory budget before it.
+REGRID_COPIES = 12
+
+
+def check_regrid(shape) -> None:
+    """Refuse, against the memory budget, a regrid onto ``shape`` nodes before it runs."""
+    n0, n1 = (int(shape), int(shape)) if np.ndim(shape) == 0 else (int(n) for n in shape)
+    check_allocation(cells_bytes(n0, n1, copies=REGRID_COPIES), f"pmf regrid to {n0} x {n1} nodes")
 
 
 def node_offsets(shape, spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -40,8 +52,8 @@ def node_positions(centre, axes, spacing, shape) -> np.ndarray:
 def normalise(log_weight: np.ndarray) -> np.ndarray:
     """Log-weights shifted so that they sum (in linear space) to one.
 
-    In numpy: its exponential is vectorised (AVX2/AVX-512), six times faster than the
-    scalar one a compiled loop calls, and a grid's exponentials are most of the work.
+    In numpy: its exponential is vectorised (AVX2/AVX-512), unlike the scalar one a
+    compiled loop calls, and a grid's exponentials are most of the work.
     """
     lw = np.asarray(log_weight, dtype=float)
     top = lw.max()

@@ -34,6 +34,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import logsumexp, ndtr
 
+from geofix.filters.state import FilterState
+
 KL_BINS = 16
 """Bins per whitened axis of the KL estimate."""
 KL_EXTENT = 4.0
@@ -134,27 +136,17 @@ def posterior_points(state) -> tuple[np.ndarray, np.ndarray, float | None] | Non
 
     ``cell_area`` (m^2) for a point-mass grid, None for a particle set (a sample).
 
-    A particle state has ``particles`` (or ``positions``) and ``log_weight``; a point-mass
-    state has a ``frame`` ``(centre, axes, spacing)`` and a 2-D ``log_weight``. Any other
-    state (an EKF's) has no weighted points: None.
+    The state's weighted posterior points
+    (:meth:`~geofix.filters.state.FilterState.points`) with their weights normalised; a
+    state without any (an EKF's) gives None.
     """
-    log_weight = getattr(state, "log_weight", None)
-    if log_weight is None:
+    found = state.points() if isinstance(state, FilterState) else None
+    if found is None:
         return None
+    points, log_weight = found
     log_weight = np.asarray(log_weight, dtype=float)
     weights = np.exp(log_weight - logsumexp(log_weight))
-    for name in ("particles", "positions"):
-        points = getattr(state, name, None)
-        if points is not None:
-            return np.asarray(points, dtype=float), weights.ravel(), None
-    if hasattr(state, "frame") and log_weight.ndim == 2:
-        centre, axes, spacing = state.frame
-        shape = np.array(log_weight.shape)
-        i, j = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
-        u = np.stack([i.ravel(), j.ravel()], axis=1) - 0.5 * (shape - 1)
-        points = centre + (u * spacing) @ np.asarray(axes).T
-        return points, weights.ravel(), float(np.prod(spacing))
-    return None
+    return np.asarray(points, dtype=float), weights.ravel(), state.node_area()
 
 
 def posterior_kl(state) -> float:

@@ -24,9 +24,9 @@ Systems 45(4):
   noise of the exact discretisation handled in one step;
 - **update**: the terrain / gravity likelihood of every particle's footprints, the same
   code as the point-mass and particle filters
-  (:func:`~geofix.measurement.hypotheses_log_likelihood`, the likelihood flattening of
-  :func:`~geofix.filters.pf.spread_field_variance` while the set is sparse, or each
-  particle's own with ``field_variance=local``); with an
+  (:meth:`~geofix.filters.likelihood.TerrainLikelihood.particles`, the likelihood
+  flattening of :func:`~geofix.filters.likelihood.spread_field_variance` while the set is
+  sparse, or each particle's own with ``field_variance=local``); with an
   aiding DVL, the velocity measurement ``v_INS - v_DVL = C x_l + noise`` updates every
   Kalman filter (shared gain) and weighs each particle by its marginal likelihood
   ``N(y; C m_i, C P C^T + R)``. ``v_INS`` is the indicated displacement over the step
@@ -98,21 +98,16 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from geofix.errors import ConfigError, MatchError
-from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.hypothesis_offset import HypothesisOffset
-from geofix.filters.nuisance import check_map_model
-from geofix.filters.pf import (
+from geofix.filters._weights import (
     RESAMPLE_COPIES,
-    PfState,
-    check_field_variance,
-    check_progressive,
     effective_sample_size,
     linear_weights,
     log_normalised,
-    particle_log_likelihood,
-    staged_update,
     systematic_resample,
 )
+from geofix.filters.base import Motion, Observation
+from geofix.filters.hypothesis_offset import HypothesisOffset
+from geofix.filters.pf import ParticleSettings
 from geofix.maps.grid import Grid
 from geofix.measurement import predict_measurements
 from geofix.memory import cells_bytes, check_allocation
@@ -184,28 +179,32 @@ class MpfState:
         w.setflags(write=False)
         return w
 
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean ``(2,)`` and covariance ``(2, 2)`` of the positions, m and m^2."""
+        return weighted_moments(self.positions, self.weights)
+
+    def mode(self) -> np.ndarray:
+        """The position ``(2,)`` of the highest-weight particle, metres."""
+        return np.asarray(self.positions[int(np.argmax(self.log_weight))], dtype=float)
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(positions (M, 2), log_weight (M,))``."""
+        return self.positions, self.log_weight
+
+    def node_area(self) -> None:
+        """None: the particles are a random sample, not nodes with cells."""
+        return None
+
 
 @dataclass(frozen=True)
-class Mpf(RecursiveFilter):
-    """Marginalised particle filter settings (the particle settings as :class:`Pf`).
+class Mpf(ParticleSettings):
+    """Marginalised particle filter settings.
+
+    The particle settings it shares with :class:`~geofix.filters.pf.Pf` are those of
+    :class:`~geofix.filters.pf.ParticleSettings`.
 
     Parameters
     ----------
-    particles : int
-        Least number of particles ``M`` (at least 10).
-    max_particles : int
-        Most particles, however wide the posterior.
-    max_spacing_cells : float
-        Wanted particle spacing, map cells.
-    extent_sigmas : float
-        Half-width of the stratified prior's box, prior standard deviations.
-    discretisation_noise : bool
-        Flatten the likelihood by the field's variance within one particle's share.
-    field_variance : str
-        ``global`` (one for the set, the default) or ``local`` (each particle's own), as
-        :class:`~geofix.filters.pf.Pf`'s.
-    resample_threshold : float
-        Resample when ``ESS < resample_threshold * M``.
     regularise : bool
         Move the resampled particles with a shrunk Gaussian kernel (see the module text).
     use_dvl : bool
@@ -213,64 +212,31 @@ class Mpf(RecursiveFilter):
     position_walk_cells : float
         Position random walk added to every prediction, map cells per square root of a
         second (see :meth:`predict`).
-    min_update_ess, progressive_stages, progressive_min_cells
-        Progressive correction of a too sharp update on a sparse set (:meth:`update`):
-        effective particles kept per stage, most stages, and the least share (map cells)
-        at which a set counts as sparse.
-    ambiguity_radius_cells, ambiguity_mass : float
-        Integrity flag: more than ``ambiguity_mass`` of the weight beyond that radius.
     prior : str
         The prior of the start position error: ``moments`` (zero mean, the simulator's
         second moments: what a navigator that knows only the INS's error budget holds,
         the default) or ``simulator`` (the very distribution the simulator draws it from,
         ``N(initial_offset, initial_std^2)`` per axis: a filter told the INS's bias, to
         measure against a bound that holds for any estimator on the trials).
-    map_model : str
-        What the likelihood assumes of the prior map: ``imperfect`` (default),
-        ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
     """
 
     name: ClassVar[str] = "mpf"
     #: The filter needs an INS error model (``problem.ins_model``; a navigator's ``ins_model``).
     needs_ins_model: ClassVar[bool] = True
 
-    particles: int = 5000
-    max_particles: int = 200_000
-    max_spacing_cells: float = 0.5
-    extent_sigmas: float = 4.0
-    discretisation_noise: bool = True
-    field_variance: str = "global"
-    resample_threshold: float = 0.5
     regularise: bool = True
     use_dvl: bool = True
     position_walk_cells: float = 2e-4
-    min_update_ess: float = 100.0
-    progressive_stages: int = 4
-    progressive_min_cells: float = 0.05
-    ambiguity_radius_cells: float = 3.0
-    ambiguity_mass: float = 0.05
     prior: str = "moments"
-    map_model: str = "imperfect"
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.prior not in PRIORS:
             raise ConfigError(f"mpf: prior must be one of {', '.join(PRIORS)}, got {self.prior!r}")
-        if self.particles < 10 or self.max_particles < self.particles:
-            raise ConfigError(
-                f"mpf: particles must be at least 10 and at most max_particles, "
-                f"got {self.particles}"
-            )
-        if self.max_spacing_cells <= 0 or self.extent_sigmas <= 0:
-            raise ConfigError("mpf: max_spacing_cells and extent_sigmas must be positive")
-        if not 0.0 <= self.resample_threshold <= 1.0:
-            raise ConfigError("mpf: resample_threshold must be in [0, 1]")
         if not (np.isfinite(self.position_walk_cells) and self.position_walk_cells >= 0):
             raise ConfigError(
                 f"mpf: position_walk_cells must be finite and >= 0, got {self.position_walk_cells}"
             )
-        check_field_variance("mpf", self.field_variance)
-        check_map_model("mpf", self.map_model)
-        check_progressive("mpf", self.min_update_ess, self.progressive_stages)
 
     # ------------------------------------------------------------------ protocol
     def match(self, problem: MatchProblem, rng: np.random.Generator):
@@ -332,6 +298,15 @@ class Mpf(RecursiveFilter):
         The position part of the prediction covariance gains the random walk
         ``(position_walk_cells * cell)^2 * dt`` per axis (m^2; at least
         :data:`MIN_STEP_VAR`), see the module text.
+
+        Parameters
+        ----------
+        state : MpfState
+            The state after the last update.
+        motion : Motion
+            The INS motion of the step (displacement, m; duration, s; process variance, m^2).
+        rng : numpy.random.Generator
+            Random draws of the step.
         """
         if effective_sample_size(state.weights) < self.resample_threshold * state.dp.shape[0]:
             state = self._resample(state, rng)
@@ -368,6 +343,17 @@ class Mpf(RecursiveFilter):
         whose copies are spread over the share of the particle they copy (its linear
         means following), the likelihood read again at the moved particles, and so on,
         at most ``progressive_stages`` times before the rest is applied at once.
+
+        Parameters
+        ----------
+        state : MpfState
+            The predicted state.
+        obs : Observation
+            The ping (beam offsets, m; values and variances, map units).
+        grid : Grid
+            The prior map.
+        rng : numpy.random.Generator
+            Random draws of the update.
         """
         log_weight = state.log_weight
         if state.dvl is not None and np.isfinite(state.dvl[obs.index]).all():
@@ -377,30 +363,23 @@ class Mpf(RecursiveFilter):
             return replace(state, log_weight=log_normalised(log_weight))
         if self.carries_offset and state.offset is None:
             state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
+        model = self.likelihood
 
         def likelihood(current: MpfState) -> np.ndarray:
-            view = PfState(
+            return model.particles(
+                grid,
+                obs,
                 current.positions,
-                current.log_weight,
+                current.spacing,
                 current.cell,
-                spacing=current.spacing,
-                offset=current.offset,
+                current.offset,
+                rng,
             )
-            return particle_log_likelihood(self, grid, view, obs, rng)
 
-        state, reads = staged_update(self, state, likelihood, self._spread_copies, rng)
+        state, reads = self.progressive.apply(state, likelihood, self._spread_copies, rng)
         if state.offset is not None:
             state = replace(state, offset=state.offset.updated(grid, state.positions, obs))
         return replace(state, evaluations=state.evaluations + reads)
-
-    @property
-    def carries_offset(self) -> bool:
-        """Each particle carries its own common offset (``map_model=imperfect``)."""
-        return self.map_model == "imperfect"
-
-    def offset_moments(self, state: MpfState) -> tuple[float, float] | None:
-        """The posterior offset's mean and variance (map units), or None without one."""
-        return None if state.offset is None else state.offset.moments(state.weights)
 
     def _spread_copies(self, state: MpfState, rng) -> MpfState:
         """Resample (same count) and spread each copy over its original's square share."""
@@ -419,9 +398,18 @@ class Mpf(RecursiveFilter):
             offset=None if state.offset is None else state.offset.take(index),
         )
 
+    def mode(self, state: MpfState) -> np.ndarray:
+        """The position ``(2,)`` the filter reports as its most likely one: the weighted mean.
+
+        The navigator's MLE of a marginalised set
+        (:func:`~geofix.filters.state.mode_position`); the highest-weight particle is
+        :meth:`MpfState.mode`.
+        """
+        return state.moments()[0]
+
     def estimate(self, state: MpfState) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean ``(2,)`` and covariance ``(2, 2)`` of the positions, m and m^2."""
-        return weighted_moments(state.positions, state.weights)
+        return state.moments()
 
     def is_ambiguous(self, state: MpfState) -> bool:
         """More than ``ambiguity_mass`` of the weight beyond the radius around the mean."""
@@ -430,11 +418,6 @@ class Mpf(RecursiveFilter):
         return bool(state.weights[far].sum() > self.ambiguity_mass)
 
     # ------------------------------------------------------------------ helpers
-    def particle_count(self, area: float, cell: float) -> int:
-        """``area / (max_spacing_cells * cell)^2`` clipped to ``[particles, max_particles]``."""
-        wanted = area / (self.max_spacing_cells * cell) ** 2
-        return int(np.clip(np.ceil(wanted), self.particles, self.max_particles))
-
     def _stratified(self, sd: np.ndarray, cell: float, rng) -> tuple[np.ndarray, float]:
         """One particle at a random point of each square of a lattice over the box."""
         side = 2.0 * self.extent_sigmas * sd

@@ -36,7 +36,7 @@ measures, the PMF's in particle form:
   particles (``discretisation_noise``, as in the PMF); it vanishes as the set concentrates.
   ``field_variance=local`` gives every particle its own instead, the field's change over
   its share at its own beams, as one offset common to the beams
-  (:func:`~geofix.measurement.local_field_log_likelihood`).
+  (:class:`~geofix.filters.likelihood.TerrainLikelihood`).
 
 The integrity flag is the PMF's: more than ``ambiguity_mass`` of the weight farther than
 ``ambiguity_radius_cells`` map cells from the weighted mean. All draws use the ``rng``
@@ -46,25 +46,28 @@ handed to the filter.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
-from scipy.special import logsumexp
 
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _particle_kernels as kernels
+from geofix.filters._weights import (
+    RESAMPLE_COPIES,
+    ProgressiveCorrection,
+    check_progressive,
+    effective_sample_size,
+    linear_weights,
+    log_normalised,
+    systematic_resample,
+)
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.hypothesis_offset import HypothesisOffset
+from geofix.filters.likelihood import TerrainLikelihood, check_field_variance
 from geofix.filters.nuisance import check_map_model
 from geofix.maps.grid import Grid
-from geofix.measurement import (
-    hypotheses_log_likelihood,
-    local_field_log_likelihood,
-    predict_measurements,
-    shift_field_variance,
-)
+from geofix.measurement import predict_measurements
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import MatchProblem
 
@@ -107,25 +110,40 @@ class PfState:
         return w
 
     @functools.cached_property
-    def moments(self) -> tuple[np.ndarray, np.ndarray]:
-        """Weighted mean ``(2,)`` and covariance ``(2, 2)``, m and m^2 (once per state)."""
+    def _moments(self) -> tuple[np.ndarray, np.ndarray]:
         w = self.weights
         mean = w @ self.particles
         d = self.particles - mean
         return mean, (d * w[:, None]).T @ d
 
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean ``(2,)`` and covariance ``(2, 2)``, m and m^2 (once per state)."""
+        mean, cov = self._moments
+        return mean.copy(), cov.copy()
+
+    def mode(self) -> np.ndarray:
+        """The highest-weight particle ``(2,)``, metres."""
+        return np.asarray(self.particles[int(np.argmax(self.log_weight))], dtype=float)
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(particles (M, 2), log_weight (M,))``."""
+        return self.particles, self.log_weight
+
+    def node_area(self) -> None:
+        """None: the particles are a random sample, not nodes with cells."""
+        return None
+
 
 @dataclass(frozen=True)
-class Pf(RecursiveFilter):
-    """Bootstrap particle filter over the horizontal position (systematic resampling).
+class ParticleSettings(RecursiveFilter):
+    """The settings every particle filter shares (:class:`Pf`, :class:`~geofix.filters.mpf.Mpf`).
 
     Parameters
     ----------
     particles : int
         Least number of particles ``M`` (at least 10).
     max_particles : int
-        Most particles, however wide the posterior (200 000 keeps a 41-beam update near
-        0.2 s).
+        Most particles, however wide the posterior.
     max_spacing_cells : float
         Wanted spacing of the particles, map cells, that a wide posterior is given more
         particles to keep (0.5, as the PMF's nodes).
@@ -134,25 +152,22 @@ class Pf(RecursiveFilter):
         posterior standard deviations.
     discretisation_noise : bool
         Flatten the likelihood by the field's variance within one particle's share of the
-        area (see the module text).
+        area (see the module text of :mod:`geofix.filters.pf`).
     field_variance : str
-        ``global``: one field variance for every particle (:func:`spread_field_variance`);
-        ``local``: each particle's own field variation within its share, common to its
-        beams (:func:`~geofix.measurement.local_field_log_likelihood`). ``global`` stays
-        the default here: on ``source002_bank`` the particle filters' lost trials come
-        from resampling a two-mode posterior with a handful of particles in the true mode,
-        which the local variance does not prevent (it moves the loss to other trials).
-        Over 1000 trials there, ``pf`` ends more than 1 km off on 7 (``roughening=0.5``:
-        6, ``resample_threshold=0.1``: 3, not a significant difference), ``pmf`` on 2 and
-        ``mpf`` on none (``benchmarks/sweep_filters.py source002_bank ... --trials 1000``).
+        ``global``: one field variance for every particle
+        (:func:`~geofix.filters.likelihood.spread_field_variance`); ``local``: each
+        particle's own field variation within its share, common to its beams
+        (:class:`~geofix.filters.likelihood.TerrainLikelihood`). ``global`` stays the
+        default here: the particle filters' lost trials on a two-mode posterior come from
+        resampling it with a handful of particles in the true mode, which the local
+        variance does not prevent.
     resample_threshold : float
         Resample when ``ESS < resample_threshold * M`` (0.5, the common choice).
-    roughening : float
-        Gordon's roughening constant ``K`` (0.2 in Gordon et al. 1993); 0 switches it off.
     min_update_ess, progressive_stages, progressive_min_cells
-        Progressive correction of a too sharp update on a sparse set (:meth:`update`):
-        effective particles kept per stage, most stages (0 switches it off), and the
-        least share (map cells) at which a set counts as sparse.
+        Progressive correction of a too sharp update on a sparse set
+        (:class:`~geofix.filters._weights.ProgressiveCorrection`): effective particles
+        kept per stage, most stages (0 switches it off), and the least share (map cells)
+        at which a set counts as sparse.
     ambiguity_radius_cells : float
         Radius around the fix, map cells, for the integrity flag.
     ambiguity_mass : float
@@ -160,6 +175,84 @@ class Pf(RecursiveFilter):
     map_model : str
         What the likelihood assumes of the prior map: ``imperfect`` (default),
         ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
+    """
+
+    name: ClassVar[str] = "particles"
+
+    particles: int = 5000
+    max_particles: int = 200_000
+    max_spacing_cells: float = 0.5
+    extent_sigmas: float = 4.0
+    discretisation_noise: bool = True
+    field_variance: str = "global"
+    resample_threshold: float = 0.5
+    min_update_ess: float = 100.0
+    progressive_stages: int = 4
+    progressive_min_cells: float = 0.05
+    ambiguity_radius_cells: float = 3.0
+    ambiguity_mass: float = 0.05
+    map_model: str = "imperfect"
+
+    def __post_init__(self) -> None:
+        name = self.name
+        if self.particles < 10 or self.max_particles < self.particles:
+            raise ConfigError(
+                f"{name}: particles must be at least 10 and at most max_particles, "
+                f"got {self.particles}"
+            )
+        check_progressive(name, self.min_update_ess, self.progressive_stages)
+        if self.max_spacing_cells <= 0 or self.extent_sigmas <= 0:
+            raise ConfigError(f"{name}: max_spacing_cells and extent_sigmas must be positive")
+        if not 0.0 <= self.resample_threshold <= 1.0:
+            raise ConfigError(f"{name}: resample_threshold must be in [0, 1]")
+        check_field_variance(name, self.field_variance)
+        check_map_model(name, self.map_model)
+
+    @property
+    def likelihood(self) -> TerrainLikelihood:
+        """The terrain measurement model of these settings."""
+        return TerrainLikelihood(self.discretisation_noise, self.field_variance)
+
+    @property
+    def progressive(self) -> ProgressiveCorrection:
+        """The progressive correction of these settings."""
+        return ProgressiveCorrection(
+            self.min_update_ess, self.progressive_stages, self.progressive_min_cells
+        )
+
+    def memory_points(self) -> tuple[str, int]:
+        """``(family, most particles)`` the filter may hold (:mod:`geofix.filters.sizing`)."""
+        return self.name, int(self.max_particles)
+
+    def particle_count(self, area: float, cell: float) -> int:
+        """Particles for a posterior box of ``area`` m^2 on a map of ``cell`` metres.
+
+        ``area / (max_spacing_cells * cell)^2``, clipped to ``[particles, max_particles]``.
+        """
+        wanted = area / (self.max_spacing_cells * cell) ** 2
+        return int(np.clip(np.ceil(wanted), self.particles, self.max_particles))
+
+    @property
+    def carries_offset(self) -> bool:
+        """Each particle carries its own common offset (``map_model=imperfect``)."""
+        return self.map_model == "imperfect"
+
+    def offset_moments(self, state) -> tuple[float, float] | None:
+        """The posterior offset's mean and variance (map units), or None without one."""
+        return None if state.offset is None else state.offset.moments(state.weights)
+
+
+@dataclass(frozen=True)
+class Pf(ParticleSettings):
+    """Bootstrap particle filter over the horizontal position (systematic resampling).
+
+    The settings it shares with :class:`~geofix.filters.mpf.Mpf` are those of
+    :class:`ParticleSettings`.
+
+    Parameters
+    ----------
+    roughening : float
+        Gordon's roughening constant ``K`` (0.2 in Gordon et al. 1993); 0 switches it off.
 
     References
     ----------
@@ -176,33 +269,12 @@ class Pf(RecursiveFilter):
 
     name: ClassVar[str] = "pf"
 
-    particles: int = 5000
-    max_particles: int = 200_000
-    max_spacing_cells: float = 0.5
-    extent_sigmas: float = 4.0
-    discretisation_noise: bool = True
-    field_variance: str = "global"
-    resample_threshold: float = 0.5
     roughening: float = 0.2
-    min_update_ess: float = 100.0
-    progressive_stages: int = 4
-    progressive_min_cells: float = 0.05
-    ambiguity_radius_cells: float = 3.0
-    ambiguity_mass: float = 0.05
-    map_model: str = "imperfect"
 
     def __post_init__(self) -> None:
-        if self.particles < 10 or self.max_particles < self.particles:
-            raise ConfigError(
-                f"pf: particles must be at least 10 and at most max_particles, got {self.particles}"
-            )
-        check_progressive("pf", self.min_update_ess, self.progressive_stages)
-        if self.max_spacing_cells <= 0 or self.extent_sigmas <= 0:
-            raise ConfigError("pf: max_spacing_cells and extent_sigmas must be positive")
-        if not 0.0 <= self.resample_threshold <= 1.0 or self.roughening < 0:
-            raise ConfigError("pf: resample_threshold must be in [0, 1], roughening >= 0")
-        check_field_variance("pf", self.field_variance)
-        check_map_model("pf", self.map_model)
+        super().__post_init__()
+        if self.roughening < 0:
+            raise ConfigError(f"pf: roughening must be >= 0, got {self.roughening}")
 
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> PfState:
         """A stratified sample of ``N(indicated[0], sigma_position[0]^2 I)``.
@@ -233,16 +305,18 @@ class Pf(RecursiveFilter):
         log_weight = -0.5 * np.sum((particles - start) ** 2, axis=1) / sigma**2
         return PfState(particles, log_normalised(log_weight), cell, spacing=h)
 
-    def particle_count(self, area: float, cell: float) -> int:
-        """Particles for a posterior box of ``area`` m^2 on a map of ``cell`` metres.
-
-        ``area / (max_spacing_cells * cell)^2``, clipped to ``[particles, max_particles]``.
-        """
-        wanted = area / (self.max_spacing_cells * cell) ** 2
-        return int(np.clip(np.ceil(wanted), self.particles, self.max_particles))
-
     def predict(self, state: PfState, motion: Motion, rng: np.random.Generator) -> PfState:
-        """Resample and roughen if the ESS is low, then move by the INS plus process noise."""
+        """Resample and roughen if the ESS is low, then move by the INS plus process noise.
+
+        Parameters
+        ----------
+        state : PfState
+            The state after the last update.
+        motion : Motion
+            The INS motion of the step (displacement, m; duration, s; process variance, m^2).
+        rng : numpy.random.Generator
+            Random draws of the step.
+        """
         count = state.particles.shape[0]
         if effective_sample_size(state.weights) < self.resample_threshold * count:
             state = self._resample(state, rng)
@@ -265,33 +339,45 @@ class Pf(RecursiveFilter):
         particles of a sparse set (its share wider than ``progressive_min_cells`` map
         cells: the stratified prior lattice, or a resampled wide posterior) is applied in
         stages (progressive correction, Oudjane & Musso 2000): the largest fraction of the
-        log-likelihood that keeps that many (:func:`stage_fraction`), then a resample
-        whose copies are spread uniformly over the share of the particle they copy, the
-        likelihood read again at the moved particles, and so on, at most
+        log-likelihood that keeps that many
+        (:func:`~geofix.filters._weights.stage_fraction`), then a resample whose copies
+        are spread uniformly over the share of the particle they copy, the likelihood read
+        again at the moved particles, and so on, at most
         ``progressive_stages`` times before the rest is applied at once. Without it a
-        64-beam first ping on a half-cell lattice leaves one particle.
+        many-beam first ping on a half-cell lattice leaves one particle.
+
+        Parameters
+        ----------
+        state : PfState
+            The predicted state.
+        obs : Observation
+            The ping (beam offsets, m; values and variances, map units).
+        grid : Grid
+            The prior map.
+        rng : numpy.random.Generator
+            Random draws of the update.
         """
         if not np.isfinite(obs.values).any():
             return state
         if self.carries_offset and state.offset is None:
             state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
+        model = self.likelihood
 
         def likelihood(current: PfState) -> np.ndarray:
-            return particle_log_likelihood(self, grid, current, obs, rng)
+            return model.particles(
+                grid,
+                obs,
+                current.particles,
+                current.spacing,
+                current.cell,
+                current.offset,
+                rng,
+            )
 
-        state, reads = staged_update(self, state, likelihood, self._spread_copies, rng)
+        state, reads = self.progressive.apply(state, likelihood, self._spread_copies, rng)
         if state.offset is not None:
             state = replace(state, offset=state.offset.updated(grid, state.particles, obs))
         return replace(state, evaluations=state.evaluations + reads)
-
-    @property
-    def carries_offset(self) -> bool:
-        """Each particle carries its own common offset (``map_model=imperfect``)."""
-        return self.map_model == "imperfect"
-
-    def offset_moments(self, state: PfState) -> tuple[float, float] | None:
-        """The posterior offset's mean and variance (map units), or None without one."""
-        return None if state.offset is None else state.offset.moments(state.weights)
 
     def _spread_copies(self, state: PfState, rng) -> PfState:
         """Resample (same count) and spread each copy uniformly over its original's share."""
@@ -308,8 +394,7 @@ class Pf(RecursiveFilter):
 
     def estimate(self, state: PfState) -> tuple[np.ndarray, np.ndarray]:
         """Weighted mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2."""
-        mean, cov = state.moments
-        return mean.copy(), cov.copy()
+        return state.moments()
 
     def is_ambiguous(self, state: PfState) -> bool:
         """More than ``ambiguity_mass`` of the weight beyond the radius around the mean."""
@@ -344,198 +429,4 @@ class Pf(RecursiveFilter):
         )
 
 
-#: Float arrays of one value per particle a resample allocates (indices, positions, the
-#: roughening draws, weights, the offsets): checked against the memory budget before it.
-RESAMPLE_COPIES = 12
-
-
-def linear_weights(log_weight: np.ndarray) -> np.ndarray:
-    """Linear weights summing to one from log-weights (shifted by their maximum first)."""
-    w = np.exp(log_weight - log_weight.max())
-    return w / w.sum()
-
-
-def log_normalised(log_weight: np.ndarray) -> np.ndarray:
-    """``log_weight - scipy.special.logsumexp(log_weight)`` for ``(M,)`` log-weights.
-
-    The same numbers, bit for bit, as scipy's ``logsumexp`` (its maximum terms kept out
-    of the sum: ``log1p(s) + log(m) + max``, ``m`` the count of maximal entries, ``s`` the
-    sum of the others' ``exp(a - max)`` over ``m``) without its generic-array overhead,
-    which dominates a few-thousand-particle step; a non-finite maximum goes to scipy.
-    """
-    top = log_weight.max()
-    if not np.isfinite(top):
-        return log_weight - logsumexp(log_weight)
-    at_top = log_weight == top
-    count = float(np.count_nonzero(at_top))
-    shifted = log_weight - top
-    shifted[at_top] = -np.inf
-    total = np.exp(shifted).sum()
-    if total != 0:
-        total = total / count
-    return log_weight - (np.log1p(total) + np.log(count) + top)
-
-
-def stage_fraction(log_weight: np.ndarray, ll: np.ndarray, remaining: float, min_ess) -> float:
-    """Largest fraction (at most ``remaining``) of ``ll`` that keeps ``min_ess`` particles.
-
-    The effective sample size of ``log_weight + a ll`` falls as ``a`` grows; bisection
-    finds the largest ``a`` keeping ``min(min_ess, M / 2)``, never below
-    ``1e-3 remaining`` (so that the stages always progress).
-    """
-    wanted = min(float(min_ess), 0.5 * log_weight.size)
-
-    def ess(a: float) -> float:
-        return effective_sample_size(np.exp(log_normalised(log_weight + a * ll)))
-
-    if ess(remaining) >= wanted:
-        return remaining
-    low, high = 0.0, remaining
-    for _ in range(30):
-        mid = 0.5 * (low + high)
-        low, high = (mid, high) if ess(mid) >= wanted else (low, mid)
-    return max(low, 1e-3 * remaining)
-
-
-def staged_update(filt, state, likelihood: Callable, spread: Callable, rng) -> tuple:
-    """Apply ``likelihood(state)`` to the weights, in stages while the set is sparse.
-
-    The progressive correction of :meth:`Pf.update` and :meth:`~geofix.filters.mpf.Mpf.
-    update`: ``filt`` holds ``min_update_ess``, ``progressive_stages`` and
-    ``progressive_min_cells``; ``state`` its ``log_weight``, ``spacing`` and ``cell``;
-    ``spread(state, rng)`` resamples and spreads the copies between stages. Returns the
-    updated state and the number of likelihood evaluations.
-    """
-    remaining, reads = 1.0, 0
-    for stage in range(filt.progressive_stages + 1):
-        ll = likelihood(state)
-        reads += ll.size
-        sparse = state.spacing > filt.progressive_min_cells * state.cell
-        if stage == filt.progressive_stages or not sparse:
-            share = remaining
-        else:
-            share = stage_fraction(state.log_weight, ll, remaining, filt.min_update_ess)
-        state = replace(state, log_weight=log_normalised(state.log_weight + share * ll))
-        remaining -= share
-        if remaining <= 0.0:
-            break
-        state = spread(state, rng)
-    return state, reads
-
-
-def check_progressive(name: str, min_update_ess: float, stages: int) -> None:
-    """Refuse a progressive-correction setting that cannot work (ConfigError)."""
-    if not (np.isfinite(min_update_ess) and min_update_ess >= 1) or stages < 0:
-        raise ConfigError(
-            f"{name}: min_update_ess must be >= 1 and progressive_stages >= 0, "
-            f"got {min_update_ess} and {stages}"
-        )
-
-
-def effective_sample_size(weights: np.ndarray) -> float:
-    """``1 / sum(w^2)`` of normalised weights ``(M,)``: between 1 and ``M``."""
-    return float(1.0 / np.sum(np.asarray(weights, dtype=float) ** 2))
-
-
-def systematic_resample(weights: np.ndarray, rng: np.random.Generator, count=None) -> np.ndarray:
-    """Indices ``(count,)`` of a systematic resample of normalised ``weights`` ``(M,)``.
-
-    One uniform draw ``u`` places ``count`` (default ``M``) pointers at ``(u + j) / count``;
-    particle ``i`` is copied once for each pointer falling in its slice of the cumulative
-    weights, so it appears ``floor(count w_i)`` or ``ceil(count w_i)`` times.
-    """
-    m = weights.shape[0] if count is None else int(count)
-    u = rng.random()
-    cumulative = np.cumsum(weights)
-    cumulative[-1] = 1.0
-    # searchsorted(cumulative, (u + arange(m)) / m, side="right") in one merge pass
-    return kernels.systematic_indices(cumulative, float(u), m)
-
-
-FIELD_VARIANCES = ("local", "global")
-"""The discretisation-noise models of the filters (``field_variance``)."""
-
-
-LOCAL_MAX_SPACING_CELLS = 1.0
-"""Largest share side, map cells, at which ``field_variance=local`` is used; a coarser set
-falls back to the global variance. Within one map cell the bilinear field is linear along
-each axis, so its change over a side describes the field across the share; over several
-cells it does not (on rough terrain the beams' variations within a share ten cells wide
-are nearly independent, the global model's assumption, and the local slope misleads)."""
-
-
-def uses_local_field(filt, side: float, cell: float) -> bool:
-    """Whether ``filt`` takes the local field variance for a share of ``side`` metres.
-
-    ``field_variance=local`` and ``0 < side <= LOCAL_MAX_SPACING_CELLS * cell``.
-    """
-    return filt.field_variance == "local" and 0 < side <= LOCAL_MAX_SPACING_CELLS * cell
-
-
-def check_field_variance(name: str, value: str) -> None:
-    """Raise :class:`ConfigError` unless ``value`` is one of :data:`FIELD_VARIANCES`."""
-    if value not in FIELD_VARIANCES:
-        raise ConfigError(f"{name}: field_variance must be local or global, got {value!r}")
-
-
-def particle_log_likelihood(filt, grid: Grid, state: PfState, obs: Observation, rng):
-    """``(M,)`` measurement log-likelihood of ``state``'s particles, discretisation noise in.
-
-    ``filt`` gives ``discretisation_noise`` and ``field_variance``: none when off or the
-    set is dense (``spacing`` 0); each particle's own field variance within its square
-    share (``local``, while the share is at most :data:`LOCAL_MAX_SPACING_CELLS` map
-    cells across); or one variance for all (``global``, :func:`spread_field_variance`,
-    drawing from ``rng``).
-    """
-    var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
-    args = (obs.heading, obs.offsets, obs.values)
-    bias_var, shift = obs.bias_var, None
-    if state.offset is not None:  # each particle's own offset, N(b_i, P)
-        bias_var, shift = state.offset.var, state.offset.mean
-    if filt.discretisation_noise and state.spacing > 0:
-        if uses_local_field(filt, state.spacing, state.cell):
-            sides = state.spacing * np.eye(2)
-            return local_field_log_likelihood(
-                grid, state.particles, *args, var, sides, bias_var, shift
-            )
-        var = var + spread_field_variance(grid, state, obs, rng)
-    return hypotheses_log_likelihood(grid, state.particles, *args, var, bias_var, shift)
-
-
-FIELD_VARIANCE_SUBSET = 2000
-"""Most particles used to estimate the field's variance within one particle's share."""
-
-FIELD_VARIANCE_DIFFERENCES = FIELD_VARIANCE_SUBSET * 64
-"""Most particle-beam differences per axis in that estimate: with more than 64 measured
-beams, fewer particles (never below :data:`FIELD_VARIANCE_MIN_PARTICLES`)."""
-
-FIELD_VARIANCE_MIN_PARTICLES = 64
-"""Fewest particles used in that estimate (when the set has that many)."""
-
-
-def field_variance_particles(particles: int, beams: int) -> int:
-    """Particles drawn for the field variance of ``beams`` measured beams.
-
-    ``min(particles, FIELD_VARIANCE_SUBSET)`` up to 64 beams; beyond, as many as keep
-    ``particles x beams`` near :data:`FIELD_VARIANCE_DIFFERENCES` (an all-beam multibeam
-    ping averages over hundreds of beams per particle already), but at least
-    :data:`FIELD_VARIANCE_MIN_PARTICLES`.
-    """
-    by_reads = max(FIELD_VARIANCE_MIN_PARTICLES, FIELD_VARIANCE_DIFFERENCES // max(beams, 1))
-    return min(particles, FIELD_VARIANCE_SUBSET, by_reads)
-
-
-def spread_field_variance(grid: Grid, state: PfState, obs: Observation, rng) -> float:
-    """Field variance within a square of side ``state.spacing``, map units squared.
-
-    ``(mean(d_x^2) + mean(d_y^2)) / 12`` over the measured beams, ``d_x``, ``d_y`` the
-    change of the field read by each beam when the vehicle moves by ``spacing`` along x
-    and along y, at :func:`field_variance_particles` particles drawn with ``rng`` (the
-    PMF's node-field variance with particles for nodes); 0 when no difference is finite.
-    """
-    use = np.isfinite(obs.values)
-    m = state.particles.shape[0]
-    pick = rng.choice(m, field_variance_particles(m, int(use.sum())), replace=False)
-    return shift_field_variance(
-        grid, state.particles[pick], obs.heading, obs.offsets, obs.values, state.spacing
-    )
+__all__ = ["ParticleSettings", "Pf", "PfState"]

@@ -16,7 +16,7 @@ position hypotheses (Bergman 1999; Anonsen & Hallingstad for HUGIN). Each sample
   (``Observation.noise_var``) plus, by default, the spread of the field within one grid
   node (``discretisation_noise``; see :class:`Pmf`): each node's own, the field's change
   over its cell at its own beams, an offset common to them
-  (``field_variance=local``, :func:`~geofix.measurement.node_grid_local_log_likelihood`).
+  (``field_variance=local``, :meth:`~geofix.filters.likelihood.TerrainLikelihood.nodes`).
   One global variance for every node (``field_variance=global``) let a node ~160 m off
   the truth on rough terrain lose ~17 nats in one sample against a wrong mode on flat
   ground, and the true mode fell below ``support_nats`` for good.
@@ -24,10 +24,9 @@ position hypotheses (Bergman 1999; Anonsen & Hallingstad for HUGIN). Each sample
 Everything stays in log space (:mod:`geofix.filters._grid_ops`), so a likelihood however
 peaked gives no underflow and no NaN. The convolution is two direct 1-D passes (compiled
 with the rest of the step's grid loops, :mod:`geofix.filters._grid_kernels`) rather than
-an FFT: on the 61 x 61 grid with kernels of 3 to 73 taps direct passes were faster than
-``scipy.signal.fftconvolve``, and as a sum of non-negative terms they are exact in the
-tails, where FFT round-off (1e-16 of the peak) would plant mass that later likelihoods,
-added in log space, could amplify.
+an FFT: as a sum of non-negative terms they are exact in the tails, where FFT round-off
+(1e-16 of the peak) would plant mass that later likelihoods, added in log space, could
+amplify.
 
 **The grid follows the posterior.** Before each prediction the posterior mean ``m`` and
 covariance ``P`` are computed; the ideal grid is centred on ``m``, its axes along the
@@ -71,25 +70,17 @@ from typing import ClassVar
 
 import numpy as np
 
-from geofix._measurement_kernels import node_field_variance_kernel
-from geofix.errors import ConfigError, MatchError
+from geofix.errors import ConfigError
 from geofix.filters import _grid_kernels as grid_kernels
 from geofix.filters import _grid_ops as ops
-from geofix.filters._pmf_errstate import conditional_motion, dvl_update, replace_marginal
+from geofix.filters._grid_ops import REGRID_COPIES, check_regrid
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.hypothesis_offset import HypothesisOffset, mixed_offsets, regridded_offsets
+from geofix.filters.hypothesis_offset import HypothesisOffset
+from geofix.filters.likelihood import TerrainLikelihood, check_field_variance, node_field_variance
+from geofix.filters.motion import MOTION_MODELS, InsErrorState, RandomWalk
 from geofix.filters.nuisance import check_map_model
-from geofix.filters.pf import check_field_variance, uses_local_field
 from geofix.maps.grid import Grid
-from geofix.measurement import (
-    local_field_log_likelihood,
-    log_likelihood,
-    node_grid_local_log_likelihood,
-    node_grid_log_likelihood,
-    predict_measurements,
-)
-from geofix.memory import cells_bytes, check_allocation
-from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
+from geofix.nav.errstate import ErrorState
 from geofix.problem import MatchProblem
 
 
@@ -158,12 +149,37 @@ class PmfState:
         return ops.node_offsets(self.shape, self.spacing)
 
     @functools.cached_property
+    def _moments(self) -> tuple[np.ndarray, np.ndarray]:
+        return ops.moments(self.log_weight, *self.frame, offsets=self.node_offsets)
+
     def moments(self) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2.
 
-        Cached: the state is immutable, and every step asks for them more than once.
+        Computed once per state (it is immutable, and every step asks for them more than
+        once); the arrays returned are copies.
         """
-        return ops.moments(self.log_weight, *self.frame, offsets=self.node_offsets)
+        mean, cov = self._moments
+        return mean.copy(), cov.copy()
+
+    def mode(self) -> np.ndarray:
+        """Position ``(2,)`` of the node of highest weight, metres."""
+        log_weight = self.log_weight
+        i, j = np.unravel_index(int(np.argmax(log_weight)), log_weight.shape)
+        u = np.array([i, j]) - 0.5 * (np.array(log_weight.shape) - 1)
+        centre, axes, spacing = self.frame
+        return np.asarray(centre + axes @ (u * spacing), dtype=float)
+
+    def points(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(node positions (N0 N1, 2), log_weight (N0 N1,))``, row-major over the grid."""
+        centre, axes, spacing = self.frame
+        shape = np.array(self.log_weight.shape)
+        i, j = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+        u = np.stack([i.ravel(), j.ravel()], axis=1) - 0.5 * (shape - 1)
+        return centre + (u * spacing) @ np.asarray(axes).T, self.log_weight.ravel()
+
+    def node_area(self) -> float:
+        """Area of one node's cell, m^2 (the product of the node spacings)."""
+        return float(np.prod(self.spacing))
 
 
 @dataclass(frozen=True)
@@ -182,14 +198,8 @@ class Pmf(RecursiveFilter):
         keep (0.5: two nodes per cell, so the true position is never more than a quarter
         of a cell from a node along each axis).
     max_points : int
-        Most nodes per axis (odd, at least ``points``). 301 keeps a 16-beam update of the
-        full grid near 10 ms; at 0.5 cell spacing it resolves a prior of +-75 cells. A
-        wider prior gets coarser nodes: ``source002_bank``'s error-state prior is 0.8
-        cells apart at 301, and ``model=errstate`` locks 1 of its 60 trials on a mode
-        13 km off; ``max_points=501`` (0.48 cells) loses none, the trial 6 % longer. 501
-        as the default changes nothing measurable on source 000 / 001 (30 trials each)
-        while their first updates, now on up to 501 x 501 nodes, make a trial up to 2.6
-        times longer (``benchmarks/sweep_filters.py``).
+        Most nodes per axis (odd, at least ``points``); at 0.5 cell spacing 301 resolves a
+        prior of +-75 cells, and a wider prior gets coarser nodes.
     extent_sigmas : float
         Half-extent of the grid in posterior standard deviations along each principal
         axis (also of the prior grid, in prior sigmas).
@@ -217,7 +227,7 @@ class Pmf(RecursiveFilter):
         cell common to the beams (:func:`~geofix.measurement.node_grid_local_log_likelihood`):
         a node a fraction of a cell off the truth on rough terrain is not over-penalised,
         nor a wrong one on flat ground over-rewarded; while the node spacing is at most
-        :data:`~geofix.filters.pf.LOCAL_MAX_SPACING_CELLS` map cells (a coarser grid
+        :data:`~geofix.filters.likelihood.LOCAL_MAX_SPACING_CELLS` map cells (a coarser grid
         takes the global one). ``global``: one variance for the whole grid, the mean
         over nodes and beams (the earlier model).
     ambiguity_radius_cells : float
@@ -228,9 +238,9 @@ class Pmf(RecursiveFilter):
         Motion model: ``rw`` (the INS error as a white random walk of per-axis variance
         ``Motion.process_var``) or ``errstate`` (the INS error state of
         :mod:`geofix.nav.errstate`, its prior the simulator's second moments, from
-        ``problem.ins_model``; see :mod:`geofix.filters._pmf_errstate`). With
-        ``use_dvl`` the error-state model folds in an aiding DVL's velocity, as ``mpf``
-        does (:func:`geofix.filters._pmf_errstate.dvl_update`).
+        ``problem.ins_model``; see :mod:`geofix.filters.motion`). With ``use_dvl`` the
+        error-state model folds in an aiding DVL's velocity, as ``mpf`` does
+        (:func:`geofix.filters.motion.dvl_update`).
     use_dvl : bool
         Fold in an aiding DVL's velocity when the problem has one (``model=errstate``;
         the random-walk model has no velocity state to aid).
@@ -276,7 +286,7 @@ class Pmf(RecursiveFilter):
     map_model: str = "imperfect"
 
     def __post_init__(self) -> None:
-        if self.model not in ("rw", "errstate"):
+        if self.model not in MOTION_MODELS:
             raise ConfigError(f"pmf: model must be rw or errstate, got {self.model!r}")
         if self.points < 5 or self.points % 2 == 0:
             raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
@@ -292,110 +302,88 @@ class Pmf(RecursiveFilter):
     @property
     def needs_ins_model(self) -> bool:
         """The error-state motion model needs an INS error model (``problem.ins_model``)."""
-        return self.model == "errstate"
+        return self.motion_model.needs_ins_model
+
+    @property
+    def motion_model(self) -> RandomWalk | InsErrorState:
+        """The motion model the ``model`` setting selects (:mod:`geofix.filters.motion`)."""
+        if self.model == "errstate":
+            return InsErrorState(self.use_dvl)
+        return RandomWalk()
+
+    @property
+    def likelihood(self) -> TerrainLikelihood:
+        """The terrain measurement model of these settings."""
+        return TerrainLikelihood(self.discretisation_noise, self.field_variance)
+
+    def memory_points(self) -> tuple[str, int]:
+        """``("pmf", most nodes)`` the filter may hold (:mod:`geofix.filters.sizing`)."""
+        return self.name, int(self.max_points) ** 2
 
     # ------------------------------------------------------------------ the recursion
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> PmfState:
-        """Gaussian prior ``N(indicated[0], sigma_position[0]^2 I)`` on a square grid.
+        """The motion model's prior on a square grid.
+
+        ``N(indicated[0], sigma_position[0]^2 I)`` with ``model=rw``; the error state's
+        position prior with ``model=errstate``.
 
         Raises
         ------
         MatchError
-            No node of the prior grid lies on valid map data.
+            No node of the prior grid lies on valid map data (or ``model=errstate``
+            without an INS error model).
         """
-        if self.model == "errstate":
-            return self._initialize_errstate(problem)
+        log_weight, centre, spacing, extra = self.motion_model.prior(self, problem)
         cell = problem.grid.cell_size
-        floor = self.min_spacing_cells * cell * (self.points - 1) / (2 * self.extent_sigmas)
-        sigma = max(float(problem.sigma_position[0]), floor)
-        centre = np.asarray(problem.indicated[0], dtype=float)
-        spacing, shape = self.grid_layout(np.full(2, self.extent_sigmas * sigma), cell)
-        xy = ops.node_positions(centre, np.eye(2), spacing, shape)
-        if not np.isfinite(predict_measurements(problem.grid, xy, 0.0, np.zeros((1, 2)))).any():
-            raise MatchError("pmf: the prior grid lies entirely off the map")
-        log_weight = ops.gaussian_log_density(xy, centre, sigma**2 * np.eye(2))
-        return PmfState(ops.normalise(log_weight), centre, np.eye(2), spacing, cell)
+        return PmfState(log_weight, centre, np.eye(2), spacing, cell, **extra)
 
     def predict(self, state: PmfState, motion: Motion, rng: np.random.Generator) -> PmfState:
-        """Follow the posterior with the grid, convolve with the motion kernel, shift."""
-        if self.model == "errstate":
-            return self._predict_errstate(state, motion)
-        state = self._follow(state, motion.process_var)
-        sd = np.sqrt(motion.process_var)
-        k0, k1 = (
-            ops.motion_kernel(sd / h, n - 1)
-            for h, n in zip(state.spacing, state.shape, strict=True)
-        )
-        kernels = (k0, k1)
-        log_weight = ops.convolve_log(state.log_weight, kernels)
-        centre = state.centre + np.asarray(motion.displacement, dtype=float)
-        offset = state.offset
-        if offset is not None:
-            mean = mixed_offsets(state.log_weight, offset.mean, kernels)
-            offset = replace(offset, mean=mean).predicted(motion.dt)
-        return replace(state, log_weight=log_weight, centre=centre, offset=offset)
+        """The motion model's prediction: the grid follows the posterior and moves.
+
+        The weights are convolved with the motion kernel
+        (:meth:`~geofix.filters.motion.RandomWalk.predict`,
+        :meth:`~geofix.filters.motion.InsErrorState.predict`).
+
+        Parameters
+        ----------
+        state : PmfState
+            The state after the last update.
+        motion : Motion
+            The INS motion of the step (displacement, m; duration, s; process variance, m^2).
+        rng : numpy.random.Generator
+            Random draws of the step.
+        """
+        return self.motion_model.predict(self, state, motion)
 
     def update(self, state: PmfState, obs: Observation, grid: Grid, rng) -> PmfState:
         """Add every node's measurement log-likelihood (all beams at once).
 
         With ``model=errstate`` and an aiding DVL, the DVL velocity first updates the
-        error-state Kalman filter and weighs the nodes.
+        error-state Kalman filter and weighs the nodes (the motion model's ``aid``).
+
+        Parameters
+        ----------
+        state : PmfState
+            The predicted state.
+        obs : Observation
+            The ping (beam offsets, m; values and variances, map units).
+        grid : Grid
+            The prior map.
+        rng : numpy.random.Generator
+            Random draws of the update.
         """
-        if state.dvl is not None and np.isfinite(state.dvl[obs.index]).all():
-            state = self._dvl_update(state, state.dvl[obs.index])
+        state = self.motion_model.aid(state, obs)
         if not np.isfinite(obs.values).any():
             return state
         if self.carries_offset and state.offset is None:
             state = replace(state, offset=HypothesisOffset.start(state.shape, obs))
-        if state.offset is not None:
-            return self._update_with_offsets(state, obs, grid)
-        if self.discretisation_noise and uses_local_field(self, state.spacing.max(), state.cell):
-            return self._update_local(state, obs, grid)
-        if obs.bias_var > 0 or grid.interpolation != "bilinear":
-            return self._update_reference(state, obs, grid)
-        # One compiled pass over nodes x beams (the reference path -- node_positions,
-        # predict_measurements, node_field_variance, log_likelihood -- to ~1e-15 relative).
-        u, v = state.node_offsets
-        ll, _ = node_grid_log_likelihood(
-            grid,
-            (state.centre, state.axes, u, v),
-            obs.heading,
-            obs.offsets,
-            obs.values,
-            obs.noise_var,
-            self.discretisation_noise,
+        ll, offset = self.likelihood.nodes(grid, obs, state)
+        return replace(
+            state,
+            log_weight=ops.normalise(state.log_weight + ll),
+            evaluations=state.evaluations + ll.size,
+            offset=offset,
         )
-        log_weight = ops.normalise(state.log_weight + ll)
-        return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
-
-    def _update_local(self, state: PmfState, obs: Observation, grid: Grid) -> PmfState:
-        """The update with every node's own field variation within its cell.
-
-        One compiled pass over the nodes (one more row and column read for the last
-        nodes' differences); through the prediction arrays with a common offset or a map
-        read other than bilinear.
-        """
-        if obs.bias_var == 0 and grid.interpolation == "bilinear":
-            u, v = state.node_offsets
-            frame = (state.centre, state.axes, u, v)
-            args = (obs.heading, obs.offsets, obs.values, obs.noise_var)
-            ll = node_grid_local_log_likelihood(grid, frame, state.spacing, *args)
-            log_weight = ops.normalise(state.log_weight + ll)
-            return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
-        xy = ops.node_positions(*state.frame, state.shape)
-        sides = (state.axes * state.spacing).T  # rows: one node step along each grid axis
-        ll = local_field_log_likelihood(
-            grid,
-            xy,
-            obs.heading,
-            obs.offsets,
-            obs.values,
-            obs.noise_var,
-            sides,
-            obs.bias_var,
-        )
-        log_weight = ops.normalise(state.log_weight + ll)
-        return replace(state, log_weight=log_weight, evaluations=state.evaluations + ll.size)
 
     @property
     def carries_offset(self) -> bool:
@@ -408,53 +396,9 @@ class Pmf(RecursiveFilter):
             return None
         return state.offset.moments(np.exp(state.log_weight))
 
-    def _update_with_offsets(self, state: PmfState, obs: Observation, grid: Grid) -> PmfState:
-        """The update marginalised over each node's own offset ``N(b_i, P)``, then the offsets'.
-
-        The nodes' predictions are read once for both (the local field variance reads its
-        own, with the nodes' sides).
-        """
-        offset = state.offset
-        assert offset is not None
-        xy = ops.node_positions(*state.frame, state.shape)
-        predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
-        if self.discretisation_noise and uses_local_field(self, state.spacing.max(), state.cell):
-            sides = (state.axes * state.spacing).T
-            args = (obs.heading, obs.offsets, obs.values, obs.noise_var, sides)
-            ll = local_field_log_likelihood(grid, xy, *args, offset.var, offset.mean)
-        else:
-            shifted = predicted + offset.mean[..., None]
-            var = obs.noise_var
-            if self.discretisation_noise:
-                var = var + node_field_variance(shifted, obs.values)
-            ll = log_likelihood(shifted, obs.values, var, offset.var)
-        return replace(
-            state,
-            log_weight=ops.normalise(state.log_weight + ll),
-            evaluations=state.evaluations + ll.size,
-            offset=offset.updated(grid, xy, obs, predicted),
-        )
-
-    def _update_reference(self, state: PmfState, obs: Observation, grid: Grid) -> PmfState:
-        """The update through the prediction array.
-
-        For the common-offset likelihood and for map reads other than bilinear, which the
-        fused pass does not cover.
-        """
-        xy = ops.node_positions(*state.frame, state.shape)
-        predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
-        var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
-        if self.discretisation_noise:
-            var = var + node_field_variance(predicted, obs.values)
-        log_weight = ops.normalise(
-            state.log_weight + log_likelihood(predicted, obs.values, var, obs.bias_var)
-        )
-        return replace(state, log_weight=log_weight, evaluations=state.evaluations + xy.size // 2)
-
     def estimate(self, state: PmfState) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2."""
-        mean, cov = state.moments
-        return mean.copy(), cov.copy()
+        return state.moments()
 
     def is_ambiguous(self, state: PmfState) -> bool:
         """More than ``ambiguity_mass`` of the posterior beyond the radius around the mean."""
@@ -462,121 +406,7 @@ class Pmf(RecursiveFilter):
         radius = self.ambiguity_radius_cells * state.cell
         return ops.mass_beyond(state.log_weight, *state.frame, mean, radius) > self.ambiguity_mass
 
-    # ------------------------------------------------------------------ error state
-    def _initialize_errstate(self, problem: MatchProblem) -> PmfState:
-        model = problem.ins_model
-        if model is None:
-            raise MatchError("pmf: model=errstate needs the INS error model (problem.ins_model)")
-        es = error_state(model, problem.times, problem.indicated)
-        cell = problem.grid.cell_size
-        floor = self.min_spacing_cells * cell * (self.points - 1) / (2 * self.extent_sigmas)
-        sigma = es.prior_cov
-        sigma[:2, :2] += floor**2 * np.eye(2)
-        centre = np.asarray(problem.indicated[0], dtype=float)
-        half = self.extent_sigmas * np.sqrt(np.diag(sigma[:2, :2]))
-        spacing, shape = self.grid_layout(half, cell)
-        xy = ops.node_positions(centre, np.eye(2), spacing, shape)
-        if not np.isfinite(predict_measurements(problem.grid, xy, 0.0, np.zeros((1, 2)))).any():
-            raise MatchError("pmf: the prior grid lies entirely off the map")
-        # position = indicated - dp: the position prior is N(indicated, Sigma_pp)
-        log_weight = ops.gaussian_log_density(xy, centre, sigma[:2, :2])
-        return PmfState(
-            ops.normalise(log_weight),
-            centre,
-            np.eye(2),
-            spacing,
-            cell,
-            kf=(np.zeros(es.dim), sigma),
-            errstate=es,
-            indicated=centre,
-            dvl=self._dvl_innovations(problem, es),
-        )
-
-    def _dvl_innovations(self, problem: MatchProblem, es: ErrorState) -> np.ndarray | None:
-        """``v_INS - v_DVL`` ``(n, 2)`` m/s (``v_INS`` the indicated step velocity)."""
-        dvl = problem.dvl_velocity
-        if not self.use_dvl or dvl is None or es.velocity_map is None:
-            return None
-        return step_velocities(problem.times, problem.indicated) - np.asarray(dvl, float)
-
-    def _dvl_update(self, state: PmfState, y: np.ndarray) -> PmfState:
-        """The DVL's velocity: node log-likelihoods and the Kalman update of the error state."""
-        es = state.errstate
-        assert es is not None and es.velocity_map is not None and state.kf is not None
-        assert state.indicated is not None
-        dp = state.indicated - ops.node_positions(*state.frame, state.shape)
-        log_like, kf = dvl_update(*state.kf, es.velocity_map, es.velocity_noise_var, y, dp)
-        log_weight = ops.normalise(state.log_weight + log_like.reshape(state.shape))
-        return replace(state, log_weight=log_weight, kf=kf)
-
-    def _predict_errstate(self, state: PmfState, motion: Motion) -> PmfState:
-        es, k = state.errstate, state.step
-        assert es is not None and state.kf is not None and state.indicated is not None
-        mean, cov = self.estimate(state)
-        mu, sigma = replace_marginal(state.kf[0], state.kf[1], state.indicated - mean, cov)
-        es, f, q = step_matrices(es, k, motion.displacement, motion.dt, motion.process_var)
-        g, h, kernel = conditional_motion(mu, sigma, f, q)
-        indicated = state.indicated + np.asarray(motion.displacement, dtype=float)
-        shift = indicated - g @ state.indicated - h  # position' = G position + shift
-        moved_mean = g @ mean + shift
-        moved_cov = g @ cov @ g.T + kernel
-        moved = replace(state, centre=g @ state.centre + shift, axes=g @ state.axes)
-        (centre, axes, spacing), shape = self.ideal_frame(moved, moved_mean, moved_cov)
-        check_regrid(shape)
-        g_inv = np.linalg.inv(g)
-        pulled = (g_inv @ (centre - shift), g_inv @ axes, spacing)
-        fallback = (mean, g_inv @ moved_cov @ g_inv.T)
-        log_weight = ops.resample_grid(state.log_weight, state.frame, pulled, fallback, shape)
-        along = np.einsum("ij,ik,kj->j", axes, kernel, axes)  # K along the new grid axes
-        k0, k1 = (
-            ops.motion_kernel(np.sqrt(max(v, 0.0)) / s) for v, s in zip(along, spacing, strict=True)
-        )
-        kernels = (k0, k1)
-        mu_next = f @ mu
-        sigma_next = f @ sigma @ f.T + q
-        offset = state.offset
-        if offset is not None:
-            moved_offsets = regridded_offsets(offset.mean, state.frame, pulled, shape)
-            mixed = mixed_offsets(log_weight, moved_offsets, kernels)
-            offset = replace(offset, mean=mixed).predicted(motion.dt)
-        return replace(
-            state,
-            offset=offset,
-            log_weight=ops.convolve_log(log_weight, kernels),
-            centre=centre,
-            axes=axes,
-            spacing=spacing,
-            kf=(mu_next, 0.5 * (sigma_next + sigma_next.T)),
-            errstate=es,
-            indicated=indicated,
-            step=k + 1,
-            regrids=state.regrids + 1,
-        )
-
     # ------------------------------------------------------------------ the moving grid
-    def _follow(self, state: PmfState, process_var: float) -> PmfState:
-        """Move the log-density onto the ideal grid for the coming prediction if needed."""
-        mean, cov = self.estimate(state)
-        frame, shape = self.ideal_frame(state, mean, cov + process_var * np.eye(2))
-        if not self._off_frame(state, frame, shape):
-            return state
-        check_regrid(shape)
-        log_weight = ops.resample_grid(state.log_weight, state.frame, frame, (mean, cov), shape)
-        offset = state.offset
-        if offset is not None:
-            moved = regridded_offsets(offset.mean, state.frame, frame, log_weight.shape)
-            offset = replace(offset, mean=moved)
-        centre, axes, spacing = frame
-        return replace(
-            state,
-            offset=offset,
-            log_weight=log_weight,
-            centre=centre,
-            axes=axes,
-            spacing=spacing,
-            regrids=state.regrids + 1,
-        )
-
     def ideal_frame(self, state: PmfState, mean: np.ndarray, cov: np.ndarray) -> tuple:
         """``((centre, axes, spacing), shape)`` covering ``+-extent_sigmas`` of ``N(mean, cov)``.
 
@@ -584,6 +414,15 @@ class Pmf(RecursiveFilter):
         and at least the reach of the nodes within ``support_nats`` of the peak
         (:meth:`support_half_extent`), changed by at most ``max_zoom`` from the current
         grid's; node spacing and count follow from it (:meth:`grid_layout`).
+
+        Parameters
+        ----------
+        state : PmfState
+            The current grid and posterior.
+        mean : numpy.ndarray
+            ``(2,)`` mean of the posterior to cover, metres.
+        cov : numpy.ndarray
+            ``(2, 2)`` its covariance, m^2.
         """
         values, axes = np.linalg.eigh(cov)
         half = self.extent_sigmas * np.sqrt(np.clip(values, 0.0, None))
@@ -598,6 +437,15 @@ class Pmf(RecursiveFilter):
 
         ``(2,)`` metres: every node within ``support_nats`` of the peak log-weight, plus
         one node spacing.
+
+        Parameters
+        ----------
+        state : PmfState
+            The current grid and posterior.
+        centre : numpy.ndarray
+            ``(2,)`` centre of the new grid, metres.
+        axes : numpy.ndarray
+            ``(2, 2)`` its orthonormal axes as columns.
         """
         threshold = float(state.log_weight.max() - self.support_nats)
         u, v = state.node_offsets
@@ -633,8 +481,18 @@ class Pmf(RecursiveFilter):
         intervals = np.clip(wanted, base, self.max_points - 1)
         return 2.0 * half / intervals, tuple(int(i) + 1 for i in intervals)
 
-    def _off_frame(self, state: PmfState, frame: tuple, shape: tuple) -> bool:
-        """True when ``state``'s grid is too far from ``frame`` in spacing, size or position."""
+    def off_frame(self, state: PmfState, frame: tuple, shape: tuple) -> bool:
+        """True when ``state``'s grid is too far from ``frame`` in spacing, size or position.
+
+        Parameters
+        ----------
+        state : PmfState
+            The current grid.
+        frame : tuple
+            ``(centre (2,), axes (2, 2), spacing (2,))`` of the ideal grid, metres.
+        shape : tuple
+            ``(N0, N1)`` nodes of the ideal grid.
+        """
         centre, axes, spacing = frame
         basis = state.axes * state.spacing
         # one solve for the new node steps and the shift, in units of the current steps
@@ -649,17 +507,6 @@ class Pmf(RecursiveFilter):
         return bool(np.max(np.abs(solved[:, 2]) / half) > self.regrid_shift)
 
 
-#: Float arrays of one value per node a regrid allocates (positions, densities, the
-#: convolution's passes, the offsets): checked against the memory budget before it.
-REGRID_COPIES = 12
-
-
-def check_regrid(shape) -> None:
-    """Refuse, against the memory budget, a regrid onto ``shape`` nodes before it runs."""
-    n0, n1 = (int(shape), int(shape)) if np.ndim(shape) == 0 else (int(n) for n in shape)
-    check_allocation(cells_bytes(n0, n1, copies=REGRID_COPIES), f"pmf regrid to {n0} x {n1} nodes")
-
-
 def _singular_values(m: np.ndarray) -> tuple[float, float]:
     """Singular values of the ``2 x 2`` matrix ``m[:, :2]`` (closed form, ``>= 0``)."""
     (a, b), (c, d) = m[0, :2].tolist(), m[1, :2].tolist()
@@ -668,21 +515,4 @@ def _singular_values(m: np.ndarray) -> tuple[float, float]:
     return math.sqrt(mid + dev), math.sqrt(max(mid - dev, 0.0))
 
 
-def node_field_variance(predicted: np.ndarray, measured: np.ndarray) -> float:
-    """Variance of the field within one grid node, map units squared.
-
-    Parameters
-    ----------
-    predicted : numpy.ndarray
-        ``(N0, N1, b)`` field each beam reads from each node (NaN off the map).
-    measured : numpy.ndarray
-        ``(b,)`` measurement; only the beams it holds count.
-
-    Returns
-    -------
-    float
-        ``(mean(d0^2) + mean(d1^2)) / 12`` with ``d0``, ``d1`` the field differences between
-        neighbouring nodes along each grid axis (a position uniform over one node's cell);
-        0 when no difference is finite.
-    """
-    return node_field_variance_kernel(predicted, measured)  # one compiled pass
+__all__ = ["REGRID_COPIES", "Pmf", "PmfState", "check_regrid", "node_field_variance"]

@@ -182,6 +182,15 @@ def patch_half_width(cov: np.ndarray, patch_sigmas: float, cell_m: float) -> np.
 
     ``patch_sigmas`` position sigmas, at least one cell, rounded up to the ladder
     ``cell_m * sqrt(2)^j`` (``j >= 0``).
+
+    Parameters
+    ----------
+    cov : numpy.ndarray
+        ``(M, 2, 2)`` (or ``(2, 2)``) position covariances, m^2.
+    patch_sigmas : float
+        Half-width of the patch in standard deviations.
+    cell_m : float
+        Map cell size, metres.
     """
     hw = np.maximum(patch_sigmas * position_sigma_max(cov), cell_m)
     steps = np.ceil(2.0 * np.log2(hw / cell_m) - 1e-9)
@@ -283,7 +292,17 @@ def measurement_covariance(obs: Observation, fit_var, corr_length_m, valid) -> n
 
 
 def initial_covariance(position_sigma: float, bias_sigma: float, velocity_sigma: float):
-    """Diagonal prior covariance ``(5, 5)`` from per-state 1-sigmas (m, map units, m/s)."""
+    """Diagonal prior covariance ``(5, 5)`` from per-state 1-sigmas (m, map units, m/s).
+
+    Parameters
+    ----------
+    position_sigma : float
+        Position 1-sigma, metres.
+    bias_sigma : float
+        Field bias 1-sigma, map units.
+    velocity_sigma : float
+        Velocity-error 1-sigma, m/s.
+    """
     return np.diag(
         [position_sigma**2, position_sigma**2, bias_sigma**2, velocity_sigma**2, velocity_sigma**2]
     )
@@ -348,6 +367,19 @@ def position_process_var(
     velocity_walk^2 t^3 / 3`` after ``t`` seconds; the step from ``elapsed`` to ``elapsed
     + dt`` keeps ``prior_growth - (V(elapsed + dt) - V(elapsed))``, at least
     :data:`MIN_POSITION_VAR`.
+
+    Parameters
+    ----------
+    prior_growth : float
+        Position variance the prior gains over the step, m^2.
+    elapsed : float
+        Seconds since the first sample.
+    dt : float
+        Duration of the step, s.
+    velocity_sigma : float
+        Prior 1-sigma of the velocity errors, m/s.
+    velocity_walk : float
+        Their random walk, m/s per sqrt(s).
     """
 
     def v(t: float) -> float:
@@ -389,6 +421,22 @@ class SitanState:
     evaluations: int = 0
     cell_m: float = 0.0
     elapsed: float = 0.0
+
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """Absolute position ``indicated + [dx, dy]`` (m) and its ``(2, 2)`` covariance (m^2)."""
+        return self.indicated + self.x[:2], self.cov[:2, :2].copy()
+
+    def mode(self) -> np.ndarray:
+        """The Kalman filter's mean position ``(2,)``, metres."""
+        return np.asarray(self.indicated + self.x[:2], dtype=float)
+
+    def points(self) -> None:
+        """None: a Kalman filter holds no weighted posterior points."""
+        return None
+
+    def node_area(self) -> None:
+        """None: no posterior points, no cells."""
+        return None
 
 
 @dataclass(frozen=True)
@@ -463,7 +511,17 @@ class Sitan(_EkfSettings, RecursiveFilter):
         )
 
     def predict(self, state: SitanState, motion: Motion, rng: np.random.Generator) -> SitanState:
-        """Propagate the error state over one step."""
+        """Propagate the error state over one step.
+
+        Parameters
+        ----------
+        state : SitanState
+            The state after the last update.
+        motion : Motion
+            The INS motion of the step (displacement, m; duration, s; process variance, m^2).
+        rng : numpy.random.Generator
+            Random draws of the step.
+        """
         x, cov = self._predict_arrays(state.x[None], state.cov[None], motion, state.elapsed)
         return replace(
             state,
@@ -474,7 +532,19 @@ class Sitan(_EkfSettings, RecursiveFilter):
         )
 
     def update(self, state: SitanState, obs: Observation, grid: Grid, rng) -> SitanState:
-        """Fold in one sample: linearise at the estimate, Kalman update, smooth the WRS."""
+        """Fold in one sample: linearise at the estimate, Kalman update, smooth the WRS.
+
+        Parameters
+        ----------
+        state : SitanState
+            The predicted state.
+        obs : Observation
+            The ping (beam offsets, m; values and variances, map units).
+        grid : Grid
+            The prior map.
+        rng : numpy.random.Generator
+            Random draws of the update.
+        """
         state = replace(state, indicated=np.asarray(obs.indicated, dtype=float))
         model, lookups = linear_model(
             grid, state.x[None], state.cov[None], obs, self.patch_sigmas, self.fit_corr_scale
@@ -495,7 +565,7 @@ class Sitan(_EkfSettings, RecursiveFilter):
 
     def estimate(self, state: SitanState) -> tuple[np.ndarray, np.ndarray]:
         """Absolute position ``indicated + [dx, dy]`` (m) and its ``(2, 2)`` covariance (m^2)."""
-        return state.indicated + state.x[:2], state.cov[:2, :2].copy()
+        return state.moments()
 
     def is_ambiguous(self, state: SitanState) -> bool:
         """Whether the fix is unsure.
@@ -587,6 +657,23 @@ class BankState:
     def best(self) -> int:
         """Index of the filter with the lowest SWRS."""
         return int(np.argmin(self.swrs))
+
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """The best filter's position (m) and ``(2, 2)`` covariance (m^2)."""
+        best = self.best
+        return self.indicated + self.x[best, :2], self.cov[best, :2, :2].copy()
+
+    def mode(self) -> np.ndarray:
+        """The best filter's mean position ``(2,)``, metres."""
+        return np.asarray(self.indicated + self.x[self.best, :2], dtype=float)
+
+    def points(self) -> None:
+        """None: a Kalman filter holds no weighted posterior points."""
+        return None
+
+    def node_area(self) -> None:
+        """None: no posterior points, no cells."""
+        return None
 
 
 def lattice_offsets(side: int, spacing: float) -> np.ndarray:
@@ -763,7 +850,17 @@ consistency_bound, drift_in_velocity
         return int(min(self.side, max(self.min_side, odd)))
 
     def predict(self, state: BankState, motion: Motion, rng: np.random.Generator) -> BankState:
-        """Propagate every filter over one step."""
+        """Propagate every filter over one step.
+
+        Parameters
+        ----------
+        state : BankState
+            The state after the last update.
+        motion : Motion
+            The INS motion of the step (displacement, m; duration, s; process variance, m^2).
+        rng : numpy.random.Generator
+            Random draws of the step.
+        """
         x, cov = self._predict_arrays(state.x, state.cov, motion, state.elapsed)
         return replace(
             state,
@@ -774,7 +871,19 @@ consistency_bound, drift_in_velocity
         )
 
     def update(self, state: BankState, obs: Observation, grid: Grid, rng) -> BankState:
-        """Update every filter, smooth their WRS, and re-initialise the bank when due."""
+        """Update every filter, smooth their WRS, and re-initialise the bank when due.
+
+        Parameters
+        ----------
+        state : BankState
+            The predicted state.
+        obs : Observation
+            The ping (beam offsets, m; values and variances, map units).
+        grid : Grid
+            The prior map.
+        rng : numpy.random.Generator
+            Random draws of the update.
+        """
         state = replace(state, indicated=np.asarray(obs.indicated, dtype=float))
         model, lookups = linear_model(
             grid, state.x, state.cov, obs, self.patch_sigmas, self.fit_corr_scale
@@ -832,8 +941,7 @@ consistency_bound, drift_in_velocity
 
     def estimate(self, state: BankState) -> tuple[np.ndarray, np.ndarray]:
         """The best filter's position (m) and ``(2, 2)`` covariance (m^2)."""
-        best = state.best
-        return state.indicated + state.x[best, :2], state.cov[best, :2, :2].copy()
+        return state.moments()
 
     def is_ambiguous(self, state: BankState) -> bool:
         """Whether the bank's fix is unsure.

@@ -13,14 +13,11 @@ The constants are measured, not derived: :mod:`tracemalloc` peaks of a navigator
 ``init`` and three ``motion`` / ``measure`` steps on a 600 x 600 cell map, at 20 000 and
 80 000 particles (101 x 101 to 301 x 301 nodes) and 8 and 64 beams, fitted as
 ``points * (a + b * beams)`` once the map layer's six copies are taken off (the
-process's peak resident size agrees within 5 %). A filter that carries an offset per
+process's peak resident size agrees with them). A filter that carries an offset per
 hypothesis (``map_model=imperfect``, or a ``depth_bias_std`` other than 0) marginalises
-each hypothesis's likelihood over it with ``(points, beams)`` arrays: about 41 bytes per
-point and beam. Otherwise the likelihood is one compiled pass and the per-beam part is
-small (measured with the compiled code already loaded: ``pmf`` with 22 801 nodes and 16
-beams peaks at 1.9 MB, about 83 bytes per node). Each
-constant here is the fit plus 10 % to 50 %, so the estimate is an upper bound at the
-sizes that matter.
+each hypothesis's likelihood over it with ``(points, beams)`` arrays. Otherwise the
+likelihood is one compiled pass and the per-beam part is small. Each constant here is
+the fit plus a margin, so the estimate is an upper bound at the sizes that matter.
 
 :func:`check_filter_budget` refuses, against :func:`geofix.memory.check_allocation`, a
 filter whose peak would exceed the memory budget; :class:`geofix.Navigator` calls it
@@ -32,16 +29,16 @@ reserves each connection's size in its ledger before a ``config``
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 from geofix.maps.grid import Grid
 from geofix.memory import check_allocation, format_bytes
 
 OFFSET_BEAM_BYTES = 44.0
-"""Bytes per point and beam of one update carrying an offset per hypothesis (measured 38.5
-to 41)."""
+"""Bytes per point and beam of one update carrying an offset per hypothesis."""
 BEAM_BYTES = 8.0
-"""Bytes per point and beam of one update otherwise (measured: 0 to 6)."""
-UPDATE_POINT_BYTES = {"pf": 96.0, "mpf": 192.0, "pmf": 128.0}
+"""Bytes per point and beam of one update otherwise."""
+UPDATE_POINT_BYTES = {"pf": 96.0, "mpf": 192.0, "pmf": 112.0}
 """Bytes per point of one update beyond the per-beam part, by filter family."""
 STATE_POINT_BYTES = {"pf": 48.0, "mpf": 128.0, "pmf": 48.0}
 """Bytes per point kept between updates, by filter family."""
@@ -78,19 +75,29 @@ class FilterSize:
         return self.state_bytes + self.update_bytes
 
 
+@runtime_checkable
+class SizedFilter(Protocol):
+    """A filter whose memory this module estimates: it declares its most points."""
+
+    map_model: str
+
+    def memory_points(self) -> tuple[str, int]:
+        """``(family, most points)``: ``pf``, ``mpf`` or ``pmf`` and its particles or nodes."""
+        ...
+
+
 def filter_points(filt) -> tuple[str, int] | None:
     """The family (``pf``, ``mpf``, ``pmf``) and most points of a filter; None if neither.
 
     ``pf`` and ``mpf`` hold at most ``max_particles`` particles, ``pmf`` at most
-    ``max_points`` x ``max_points`` nodes (after any regrid). Filters of another family
-    (``sitan``, a bank of EKFs) are not sized here.
+    ``max_points`` x ``max_points`` nodes (after any regrid): each declares it
+    (:class:`SizedFilter`). Filters of another family (``sitan``, a bank of EKFs) are not
+    sized here.
     """
-    name = str(getattr(filt, "name", ""))
-    if name in ("pf", "mpf") and hasattr(filt, "max_particles"):
-        return name, int(filt.max_particles)
-    if name == "pmf" and hasattr(filt, "max_points"):
-        return name, int(filt.max_points) ** 2
-    return None
+    if not isinstance(filt, SizedFilter):
+        return None
+    kind, points = filt.memory_points()
+    return (kind, int(points)) if kind in UPDATE_POINT_BYTES else None
 
 
 def update_beams(settings, beams: int | None = None) -> int:
@@ -136,7 +143,7 @@ def filter_size(filt, settings=None, grid: Grid | None = None, beams: int | None
     if not isinstance(settings, NavigatorSettings):
         settings = NavigatorSettings.from_dict(settings)
     b = update_beams(settings, beams)
-    map_model = str(getattr(filt, "map_model", "exact"))
+    map_model = str(filt.map_model)
     offset = map_model == "imperfect" or settings.depth_bias_std != 0
     per_beam = OFFSET_BEAM_BYTES if offset else BEAM_BYTES
     state = float(points) * (STATE_POINT_BYTES[kind] + STATE_BEAM_BYTES[kind] * b)
@@ -156,6 +163,17 @@ def check_filter_budget(filt, settings=None, grid: Grid | None = None, beams=Non
     construction, so ``geofix replay`` and ``geofix serve``), so nothing of the filter is
     allocated when it is refused; :func:`geofix.navigator.check_method_budget` takes a
     method spec.
+
+    Parameters
+    ----------
+    filt : RecursiveFilter
+        The filter (:class:`SizedFilter` to be sized).
+    settings : FilterSettings or dict, optional
+        The navigator's filter settings; the defaults when None.
+    grid : Grid, optional
+        The map (for the representation-error layer).
+    beams : int, optional
+        Most beams of a ping; None: as many as the settings allow.
 
     Returns
     -------
