@@ -19,8 +19,21 @@ def test_campaign_figure_draws_every_track_and_the_bound(tmp_path):
     ax_map, ax_err, ax_cdf = fig.axes[:3]
     labels = [line.get_label() for line in ax_map.get_lines()]
     assert {"true", "INS indicated", "tercom", "pmf"} <= set(labels)
-    widths = {ln.get_label(): ln.get_linewidth() for ln in ax_map.get_lines()}
+    lines = {ln.get_label(): ln for ln in ax_map.get_lines()}
+    widths = {name: line.get_linewidth() for name, line in lines.items()}
     assert widths["tercom"] > widths["pmf"] > widths["true"]  # overlapping tracks stay visible
+    order = [lines[name].get_zorder() for name in ("tercom", "pmf", "INS indicated", "true")]
+    assert order == sorted(order) and len(set(order)) == 4  # each narrower one on top
+    legend = ax_map.get_legend()
+    entries = {
+        text.get_text(): handle
+        for text, handle in zip(legend.get_texts(), legend.legend_handles, strict=True)
+    }
+    for name in ("true", "INS indicated", "tercom", "pmf"):
+        assert entries[name].get_marker() not in (None, "None", ""), name  # end marker shown
+    assert len({entries[n].get_marker() for n in ("true", "INS indicated", "tercom", "pmf")}) == 4
+    colour_bar = next(ax for ax in fig.axes if ax.get_label() == "<colorbar>")
+    assert colour_bar.get_ylabel() == "seabed elevation (m, negative below sea level)"
     np.testing.assert_allclose(
         next(ln for ln in ax_err.get_lines() if ln.get_label() == "CRLB (RMS)").get_ydata(), bound
     )

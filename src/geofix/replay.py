@@ -673,33 +673,92 @@ def _write_netcdf(frame, result: ReplayResult, path: Path) -> Path:
 
 
 def replay_figure(result: ReplayResult, grid: Grid, path: Path) -> Path:
-    """Map with the truth, the INS and every method's track; error against time."""
-    from geofix.plot.figures import _pyplot, save_figure
+    """Write ``replay.png``: the tracks on the map, and the error against time.
+
+    Left panel: the map around the tracks (:func:`geofix.plot.figures.draw_track_map`)
+    with the truth (when the log has one), the INS-indicated track and every method's
+    track, each its own colour, line style and end marker. Right panel, against time
+    since the first ping: the position error of the INS and of every method (when the
+    truth is known), and every method's 3-sigma band -- shaded up to three times the
+    square root of the largest eigenvalue of its covariance, which a consistent filter's
+    error stays below -- with two map cells for scale.
+
+    Parameters
+    ----------
+    result : ReplayResult
+        The replay.
+    grid : Grid
+        The map it ran on.
+    path : pathlib.Path
+        The PNG to write (whole or absent), tagged with the replay's ``run_id``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    from geofix.plot.figures import _pyplot, draw_track_map, save_figure, track_style
 
     plt = _pyplot()
-    fig, (ax_map, ax_err) = plt.subplots(1, 2, figsize=(13, 5.5), width_ratios=[1.2, 1])
-    west, east, south, north = grid.extent
-    ax_map.imshow(grid.values, origin="lower", extent=(west, east, south, north), cmap="viridis")
+    fig, (ax_map, ax_err) = plt.subplots(
+        1, 2, figsize=(14, 5.8), width_ratios=[1.15, 1], constrained_layout=True
+    )
     truth = result.inputs.truth
-    if truth is not None:
-        ax_map.plot(*truth.T, "k-", lw=2, label="truth")
-    ax_map.plot(*result.inputs.indicated.T, "r--", lw=1.2, label="INS")
-    for spec, ests in result.estimates.items():
-        track = np.array([e.position for e in ests])
-        ax_map.plot(*track.T, ".-", ms=3, lw=1, label=spec)
-        if truth is not None:
-            err = np.hypot(*(track - truth).T)
-            ax_err.semilogy([e.t for e in ests], np.maximum(err, 1e-3), label=spec)
-    ax_map.set_xlabel("x east, m")
-    ax_map.set_ylabel("y north, m")
-    ax_map.legend(loc="best", fontsize=8)
-    ax_err.axhline(2 * grid.cell_size, color="grey", ls=":", label="2 cells")
-    ax_err.set_xlabel("time, s")
-    ax_err.set_ylabel("position error, m")
+    indicated = np.asarray(result.inputs.indicated, dtype=float)
+    tracks = {
+        spec: np.array([e.position for e in ests], dtype=float).reshape(-1, 2)
+        for spec, ests in result.estimates.items()
+    }
+    draw_track_map(ax_map, grid, truth, indicated, tracks)
+    ax_map.set_title("tracks")
+    times = np.asarray(result.mission.times, dtype=float)
+    start = times[0] if times.size else 0.0
+    scale, unit = (3600.0, "h") if times.size and times[-1] - start > 7200.0 else (60.0, "min")
+    curves: list[np.ndarray] = []
+    if truth is not None and len(truth) == len(indicated) == times.size:
+        ins_error = np.hypot(*(indicated - truth).T)
+        ax_err.plot((times - start) / scale, ins_error, color="tab:red", ls="--", label="INS")
+        curves.append(ins_error)
+    bands = []
+    for k, (spec, ests) in enumerate(result.estimates.items()):
+        colour, style, _ = track_style(k)
+        t = (np.array([e.t for e in ests], dtype=float) - start) / scale
+        sigma3 = 3.0 * np.sqrt(_largest_eigenvalue(np.array([e.covariance for e in ests])))
+        bands.append((t, sigma3, colour, spec))
+        curves.append(sigma3)
+        if truth is not None and len(truth) == len(ests):
+            error = np.hypot(*(tracks[spec] - truth).T)
+            ax_err.plot(t, error, color=colour, ls=style, lw=1.6, label=f"{spec} error")
+            curves.append(error)
+    floor = _log_floor(curves)
+    for t, sigma3, colour, spec in bands:
+        ax_err.fill_between(t, floor, sigma3, color=colour, alpha=0.15, lw=0)
+        ax_err.plot(t, sigma3, color=colour, lw=0.8, alpha=0.8, label=f"{spec} 3σ")
+    ax_err.axhline(2 * grid.cell_size, color="grey", ls=":", label="2 map cells")
+    ax_err.set_yscale("log")
+    ax_err.set_ylim(bottom=floor)
+    ax_err.set_xlabel(f"time since the first ping ({unit})")
+    ax_err.set_ylabel("position error (m)")
+    ax_err.grid(True, which="both", alpha=0.3)
     ax_err.legend(loc="best", fontsize=8)
+    known = "error and 3σ" if truth is not None else "3σ (no truth in the log)"
+    ax_err.set_title(f"{known} against time")
     fig.suptitle(f"replay of {result.mission.name}")
-    fig.tight_layout()
     return save_figure(fig, path, metadata={RUN_ID_KEY: result.run_id})
+
+
+def _largest_eigenvalue(cov: np.ndarray) -> np.ndarray:
+    """``(n,)`` largest eigenvalue of ``(n, 2, 2)`` symmetric matrices (NaN stays NaN), m^2."""
+    cov = np.asarray(cov, dtype=float).reshape(-1, 2, 2)
+    a, b, d = cov[:, 0, 0], 0.5 * (cov[:, 0, 1] + cov[:, 1, 0]), cov[:, 1, 1]
+    return 0.5 * (a + d) + np.sqrt((0.5 * (a - d)) ** 2 + b**2)
+
+
+def _log_floor(curves: list[np.ndarray]) -> float:
+    """The bottom of a log axis a little under the smallest positive value drawn, metres."""
+    values = np.concatenate([np.ravel(c) for c in curves]) if curves else np.empty(0)
+    positive = values[np.isfinite(values) & (values > 0)]
+    return float(0.5 * positive.min()) if positive.size else 1.0
 
 
 def replay_log(

@@ -92,12 +92,68 @@ def campaign_figure(
 _INS_STYLE = ("tab:red", "--", "x")
 
 
-def _track_style(k: int) -> tuple:
+def track_style(k: int) -> tuple:
+    """``(colour, line style, end marker)`` of the ``k``-th track of a figure (from 0)."""
     return _STYLES[k % len(_STYLES)]
 
 
-def _draw_map(ax, grid, truth, indicated, estimates, margin_m):
-    pts = np.vstack([truth, indicated, *estimates.values()])
+def field_label(kind: str, units: str) -> str:
+    """What a map's values are, for a colour bar (:mod:`geofix.conventions`, *Fields*).
+
+    Examples
+    --------
+    >>> field_label("depth", "m")
+    'seabed elevation (m, negative below sea level)'
+    >>> field_label("gravity", "mGal")
+    'free-air gravity anomaly (mGal)'
+    """
+    if kind == "depth":  # bathymetry is stored as elevation
+        return f"seabed elevation ({units}, negative below sea level)"
+    if kind == "gravity":
+        return f"free-air gravity anomaly ({units})"
+    return f"{kind} ({units})"
+
+
+#: Widest and narrowest line width of the estimated tracks on a map, points.
+_TRACK_WIDTHS = (4.5, 2.2)
+
+
+def draw_track_map(
+    ax,
+    grid: Grid,
+    truth: np.ndarray | None,
+    indicated: np.ndarray,
+    estimates: dict[str, np.ndarray],
+    margin_m: float | None = None,
+) -> None:
+    """Draw the map around the tracks, in kilometres, with every track told apart.
+
+    The estimates are drawn widest first, each narrower one on top of the wider ones and
+    edged in white, then the INS-indicated track and, narrowest and on top, the true
+    track: tracks lying on one another all stay visible. Every track ends in its own
+    marker, which its legend entry shows; the colour bar says what the map's values are
+    (:func:`field_label`).
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+        Where to draw.
+    grid : Grid
+        The map.
+    truth : numpy.ndarray or None
+        ``(n, 2)`` true track, metres (None: not known).
+    indicated : numpy.ndarray
+        ``(n, 2)`` INS-indicated track, metres.
+    estimates : dict of str to numpy.ndarray
+        ``(m, 2)`` estimated track per method, metres.
+    margin_m : float, optional
+        Map margin around the tracks, metres (default: a third of the track extent, at
+        least 8 cells).
+    """
+    from matplotlib import patheffects
+
+    tracks = [t for t in (truth, indicated, *estimates.values()) if t is not None and len(t)]
+    pts = np.vstack(tracks)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     margin = margin_m if margin_m is not None else max(0.3 * (hi - lo).max(), 8 * grid.cell_size)
     x0, x1 = lo[0] - margin, hi[0] + margin
@@ -107,30 +163,51 @@ def _draw_map(ax, grid, truth, indicated, estimates, margin_m):
     image = ax.imshow(
         sub.values, origin="lower", extent=[v * km for v in _edges(sub)], cmap="Greys_r"
     )
-    ax.figure.colorbar(image, ax=ax, label=f"{grid.kind} ({grid.units})", shrink=0.8)
-    ax.plot(*(indicated * km).T, color="tab:red", ls="--", lw=1.6, label="INS indicated")
-    ax.plot(*(indicated[-1] * km), "x", color="tab:red", ms=9, mew=2)
-    widths = np.linspace(4.5, 1.5, max(len(estimates), 1))
+    ax.figure.colorbar(image, ax=ax, label=field_label(grid.kind, grid.units), shrink=0.8)
+    widths = np.linspace(*_TRACK_WIDTHS, max(len(estimates), 2))
     for k, (name, est) in enumerate(estimates.items()):
-        colour, style, marker = _track_style(k)
-        ax.plot(*(est * km).T, color=colour, ls=style, lw=widths[k], alpha=0.9, label=name)
-        ax.plot(*(est[-1] * km), marker, color=colour, ms=9, mec="k", mew=0.8)
-    ax.plot(*(truth * km).T, color="k", lw=1.2, label="true")
-    ax.plot(*(truth[0] * km), "k>", ms=7)
-    ax.plot(*(truth[-1] * km), "k*", ms=12, mec="w", mew=0.8)
+        halo = [patheffects.withStroke(linewidth=widths[k] + 1.5, foreground="w", alpha=0.8)]
+        style = track_style(k)
+        _track_line(ax, est * km, name, style, widths[k], zorder=3 + k, path_effects=halo)
+    top = 3 + len(estimates)
+    ins_style = {"zorder": top, "mew": 2, "mec": _INS_STYLE[0]}
+    _track_line(ax, indicated * km, "INS indicated", _INS_STYLE, 1.4, **ins_style)
+    if truth is not None:
+        ax.plot(*(truth[0] * km), "k>", ms=7, zorder=top + 1, label="start")
+        _track_line(ax, truth * km, "true", ("k", "-", "*"), 1.2, zorder=top + 1, mec="w", ms=13)
     ax.set_xlim(x0 * km, x1 * km)
     ax.set_ylim(y0 * km, y1 * km)
     ax.set_xlabel("east (km)")
     ax.set_ylabel("north (km)")
     ax.set_aspect("equal")
-    ax.legend(loc="best", fontsize=8, framealpha=0.9)
-    ax.set_title("trial 0: tracks (end points marked)")
+    ax.legend(loc="best", fontsize=8, framealpha=0.9, title="marker: end point", title_fontsize=8)
+
+
+def _track_line(ax, track: np.ndarray, label: str, style: tuple, width: float, **kw) -> None:
+    """One track with its end marker, as one legend entry (line and marker)."""
+    colour, line, marker = style
+    kw = {"ms": 9, "mec": "k", "mew": 0.8, **kw}
+    ax.plot(
+        *track.T,
+        color=colour,
+        ls=line,
+        lw=width,
+        marker=marker,
+        markevery=[len(track) - 1],
+        label=label,
+        **kw,
+    )
+
+
+def _draw_map(ax, grid, truth, indicated, estimates, margin_m):
+    draw_track_map(ax, grid, truth, indicated, estimates, margin_m)
+    ax.set_title("trial 0: tracks")
 
 
 def _draw_track_errors(ax, t, truth, indicated, estimates, bound_track, minutes: bool):
     ax.plot(t, np.hypot(*(indicated - truth).T), color="tab:red", ls="--", label="INS")
     for k, (name, est) in enumerate(estimates.items()):
-        colour, style, _ = _track_style(k)
+        colour, style, _ = track_style(k)
         ax.plot(t, np.hypot(*(est - truth).T), color=colour, ls=style, lw=1.6, label=name)
     if bound_track is not None:
         ax.plot(t, bound_track, color="k", lw=1, label="CRLB (RMS)")
@@ -148,7 +225,7 @@ def _draw_cdf(ax, end_errors, cell_m, bound_m):
         v = np.sort(np.asarray(values, float)[np.isfinite(values)])
         if not v.size:
             continue
-        colour, style, _ = _INS_STYLE if name == "ins" else _track_style(methods.index(name))
+        colour, style, _ = _INS_STYLE if name == "ins" else track_style(methods.index(name))
         share = np.arange(1, v.size + 1) / np.asarray(values).size
         label = f"{name} (RMS {np.sqrt(np.mean(v**2)):.0f} m)"
         ax.step(v, share, where="post", color=colour, ls=style, lw=1.8, label=label)
@@ -199,7 +276,7 @@ def error_band_figure(errors: dict[str, np.ndarray], limit_m: float | None = Non
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True, constrained_layout=True)
     for k, (spec, e) in enumerate(errors.items()):
-        colour, style, _ = _track_style(k)
+        colour, style, _ = track_style(k)
         e = np.asarray(e, float) / 1e3
         steps = np.arange(e.shape[1]) if x is None else np.asarray(x)
         axes[0].plot(steps, e[0], color=colour, ls=style, label=spec)
@@ -238,7 +315,7 @@ def leg_errors_figure(panels: dict[str, dict[str, np.ndarray]], limit_m: float |
     )
     for ax, (title, lines) in zip(np.atleast_1d(axes), panels.items(), strict=True):
         for k, (spec, legs) in enumerate(lines.items()):
-            colour, style, marker = _track_style(k)
+            colour, style, marker = track_style(k)
             legs = np.asarray(legs, float)
             ax.plot(
                 np.arange(1, legs.size + 1), legs, color=colour, ls=style, marker=marker, label=spec
@@ -275,7 +352,7 @@ def success_rate_figure(panels: dict[str, dict[str, dict[str, float]]], xlabel: 
         levels = [float(k) for k in next(iter(methods.values()))]
         width = 0.8 * (levels[1] - levels[0] if len(levels) > 1 else 1.0) / len(methods)
         for i, (method, rates) in enumerate(methods.items()):
-            colour = _track_style(i)[0]
+            colour = track_style(i)[0]
             offset = (i - (len(methods) - 1) / 2) * width
             values = [100 * (v or 0.0) for v in rates.values()]
             ax.bar(np.array(levels) + offset, values, width, color=colour, label=method)
