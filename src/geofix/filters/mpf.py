@@ -62,14 +62,12 @@ The INS error is (nearly) noise-free, so its states are in effect static paramet
 each particle's path, and a particle filter on static parameters degenerates: once the
 set has collapsed onto the survivors of a wide prior, the copies share a few linear means,
 the shared ``P`` has shrunk with every motion, and the set can end a few metres wide
-while hundreds of metres off (seen on a 30 km prior over 1 km cells: 1 trial in 30 ended
-640 m off with a NEES of 4e3, the bound being 8 m). Every prediction therefore adds a
+while hundreds of metres off. Every prediction therefore adds a
 small position random walk, ``position_walk_cells`` map cells per square root of a second
 (default 2e-4: 1.1 m per 30 s step on a 1 km map, 9 mm per 20 s step on a 10 m map), the
 unmodelled part of the motion (the map's interpolation error, the vehicle's unlogged
 manoeuvres): the particles keep exploring around the terrain's peak, and the linear
-states learn a little less from each particle's motion. On the bundled scenarios it
-changed nothing beyond the Monte-Carlo spread except where the set had collapsed.
+states learn a little less from each particle's motion.
 
 An update sharper than a sparse set can represent (many beams on a prior lattice a
 fraction of a cell apart: a few particles would keep all the weight, by the luck of
@@ -107,11 +105,12 @@ from geofix.filters._weights import (
 )
 from geofix.filters.base import Motion, Observation
 from geofix.filters.hypothesis_offset import HypothesisOffset
+from geofix.filters.motion import InsErrorState
 from geofix.filters.pf import ParticleSettings
 from geofix.maps.grid import Grid
 from geofix.measurement import predict_measurements
 from geofix.memory import cells_bytes, check_allocation
-from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
+from geofix.nav.errstate import ErrorState, error_state, step_matrices
 from geofix.problem import MatchProblem
 
 _P = slice(0, 2)
@@ -287,7 +286,7 @@ class Mpf(ParticleSettings):
             indicated=start,
             step=0,
             model=es,
-            dvl=self._dvl_innovations(problem, es),
+            dvl=InsErrorState(self.use_dvl).dvl_innovations(problem, es),
             cell=cell,
             spacing=h,
         )
@@ -430,12 +429,6 @@ class Mpf(ParticleSettings):
         axes = [(np.arange(m) - 0.5 * m) * s for m, s in zip(per_axis, step, strict=True)]
         lattice = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 2)
         return lattice + step * rng.random(lattice.shape), float(np.sqrt(step.prod()))
-
-    def _dvl_innovations(self, problem: MatchProblem, es: ErrorState) -> np.ndarray | None:
-        dvl = problem.dvl_velocity
-        if not self.use_dvl or dvl is None or es.velocity_map is None:
-            return None
-        return step_velocities(problem.times, problem.indicated) - np.asarray(dvl, float)
 
     def _dvl_update(self, state: MpfState, y: np.ndarray, log_weight: np.ndarray):
         assert state.model.velocity_map is not None  # only called with DVL innovations

@@ -17,9 +17,9 @@ position hypotheses (Bergman 1999; Anonsen & Hallingstad for HUGIN). Each sample
   node (``discretisation_noise``; see :class:`Pmf`): each node's own, the field's change
   over its cell at its own beams, an offset common to them
   (``field_variance=local``, :meth:`~geofix.filters.likelihood.TerrainLikelihood.nodes`).
-  One global variance for every node (``field_variance=global``) let a node ~160 m off
-  the truth on rough terrain lose ~17 nats in one sample against a wrong mode on flat
-  ground, and the true mode fell below ``support_nats`` for good.
+  One global variance for every node (``field_variance=global``) can let a node a little
+  off the truth on rough terrain lose many nats in one sample against a wrong mode on
+  flat ground, and the true mode fall below ``support_nats`` for good.
 
 Everything stays in log space (:mod:`geofix.filters._grid_ops`), so a likelihood however
 peaked gives no underflow and no NaN. The convolution is two direct 1-D passes (compiled
@@ -51,10 +51,9 @@ spacing at ``max_spacing_cells`` (up to ``max_points`` per axis, beyond which th
 grows again). The reason: the likelihood of a multibeam swath or of a long track is often
 narrower than one map cell, so a grid coarser than the map samples it at points that may
 all miss the true peak by a sizeable part of it, while a chance fit elsewhere is hit
-squarely; over many samples that bias compounds into a confident wrong fix (a 61-node
-prior grid over a 30 km error on a 1 km map put 2 km between nodes and converged on wrong
-places in a third of the runs). Once the posterior has shrunk the count falls back to
-``points``, so the extra cost is paid only in the first, wide steps.
+squarely; over many samples that bias compounds into a confident wrong fix. Once the
+posterior has shrunk the count falls back to ``points``, so the extra cost is paid only
+in the first, wide steps.
 
 **Integrity.** :meth:`Pmf.is_ambiguous` is True when more than ``ambiguity_mass`` of the
 posterior lies farther than ``ambiguity_radius_cells`` map cells from the posterior mean
