@@ -60,7 +60,7 @@ _P = slice(0, 2)
 _L = slice(2, None)
 
 #: ``(normalised log-weights (N0, N1), centre (2,) m, spacing (2,) m, the model's own
-#: PmfState fields)`` of a prior grid (its axes are x and y).
+#: PmfState fields by name)`` of a prior grid (its axes are x and y).
 PriorGrid = tuple[np.ndarray, np.ndarray, np.ndarray, dict]
 
 
@@ -68,6 +68,31 @@ def _prior_grid_on_map(problem: MatchProblem, xy: np.ndarray) -> None:
     """Refuse (MatchError) a prior grid whose nodes all lie off the map."""
     if not np.isfinite(predict_measurements(problem.grid, xy, 0.0, np.zeros((1, 2)))).any():
         raise MatchError("pmf: the prior grid lies entirely off the map")
+
+
+@dataclass(frozen=True, eq=False)
+class ErrorStateTrack:
+    """The error-state motion model's part of a point-mass state.
+
+    Parameters
+    ----------
+    kf : tuple
+        ``(mu (d,), Sigma (d, d))`` of the INS error state (Kalman filter).
+    errstate : ErrorState
+        The error model along the indicated track.
+    indicated : numpy.ndarray
+        ``(2,)`` indicated position at the current sample, metres.
+    step : int
+        Current sample index.
+    dvl : numpy.ndarray or None
+        ``(n, 2)`` ``v_INS - v_DVL`` at every sample, m/s, when a DVL aids.
+    """
+
+    kf: tuple[np.ndarray, np.ndarray]
+    errstate: ErrorState
+    indicated: np.ndarray
+    step: int = 0
+    dvl: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -200,13 +225,10 @@ class InsErrorState:
         _prior_grid_on_map(problem, xy)
         # position = indicated - dp: the position prior is N(indicated, Sigma_pp)
         log_weight = ops.gaussian_log_density(xy, centre, sigma[:2, :2])
-        extra = {
-            "kf": (np.zeros(es.dim), sigma),
-            "errstate": es,
-            "indicated": centre,
-            "dvl": self.dvl_innovations(problem, es),
-        }
-        return ops.normalise(log_weight), centre, spacing, extra
+        track = ErrorStateTrack(
+            (np.zeros(es.dim), sigma), es, centre, dvl=self.dvl_innovations(problem, es)
+        )
+        return ops.normalise(log_weight), centre, spacing, {"track": track}
 
     def dvl_innovations(self, problem: MatchProblem, es: ErrorState) -> np.ndarray | None:
         """``v_INS - v_DVL`` ``(n, 2)`` m/s (``v_INS`` the indicated step velocity)."""
@@ -217,19 +239,21 @@ class InsErrorState:
 
     def aid(self, state: PmfState, obs: Observation) -> PmfState:
         """The DVL's velocity at ``obs``'s sample, when it aids and is finite there."""
-        if state.dvl is not None and np.isfinite(state.dvl[obs.index]).all():
-            return self.dvl_update(state, state.dvl[obs.index])
+        track = state.track
+        assert track is not None
+        if track.dvl is not None and np.isfinite(track.dvl[obs.index]).all():
+            return self.dvl_update(state, track.dvl[obs.index])
         return state
 
     def dvl_update(self, state: PmfState, y: np.ndarray) -> PmfState:
         """The DVL's velocity: node log-likelihoods and the Kalman update of the error state."""
-        es = state.errstate
-        assert es is not None and es.velocity_map is not None and state.kf is not None
-        assert state.indicated is not None
-        dp = state.indicated - ops.node_positions(*state.frame, state.shape)
-        log_like, kf = dvl_update(*state.kf, es.velocity_map, es.velocity_noise_var, y, dp)
+        track = state.track
+        assert track is not None and track.errstate.velocity_map is not None
+        es = track.errstate
+        dp = track.indicated - ops.node_positions(*state.frame, state.shape)
+        log_like, kf = dvl_update(*track.kf, es.velocity_map, es.velocity_noise_var, y, dp)
         log_weight = ops.normalise(state.log_weight + log_like.reshape(state.shape))
-        return replace(state, log_weight=log_weight, kf=kf)
+        return replace(state, log_weight=log_weight, track=replace(track, kf=kf))
 
     def predict(self, pmf: Pmf, state: PmfState, motion: Motion) -> PmfState:
         """Carry the grid through the affine motion given ``dp``, convolve with ``K``.
@@ -245,14 +269,17 @@ class InsErrorState:
         rng : numpy.random.Generator
             Random draws of the step.
         """
-        es, k = state.errstate, state.step
-        assert es is not None and state.kf is not None and state.indicated is not None
+        track = state.track
+        assert track is not None
+        k = track.step
         mean, cov = state.moments()
-        mu, sigma = replace_marginal(state.kf[0], state.kf[1], state.indicated - mean, cov)
-        es, f, q = step_matrices(es, k, motion.displacement, motion.dt, motion.process_var)
+        mu, sigma = replace_marginal(track.kf[0], track.kf[1], track.indicated - mean, cov)
+        es, f, q = step_matrices(
+            track.errstate, k, motion.displacement, motion.dt, motion.process_var
+        )
         g, h, kernel = conditional_motion(mu, sigma, f, q)
-        indicated = state.indicated + np.asarray(motion.displacement, dtype=float)
-        shift = indicated - g @ state.indicated - h  # position' = G position + shift
+        indicated = track.indicated + np.asarray(motion.displacement, dtype=float)
+        shift = indicated - g @ track.indicated - h  # position' = G position + shift
         moved_mean = g @ mean + shift
         moved_cov = g @ cov @ g.T + kernel
         moved = replace(state, centre=g @ state.centre + shift, axes=g @ state.axes)
@@ -281,10 +308,9 @@ class InsErrorState:
             centre=centre,
             axes=axes,
             spacing=spacing,
-            kf=(mu_next, 0.5 * (sigma_next + sigma_next.T)),
-            errstate=es,
-            indicated=indicated,
-            step=k + 1,
+            track=ErrorStateTrack(
+                (mu_next, 0.5 * (sigma_next + sigma_next.T)), es, indicated, k + 1, track.dvl
+            ),
             regrids=state.regrids + 1,
         )
 
@@ -385,6 +411,7 @@ def dvl_update(mu, sigma, velocity_map, noise_var: float, y, dp):
 
 __all__ = [
     "MOTION_MODELS",
+    "ErrorStateTrack",
     "InsErrorState",
     "RandomWalk",
     "conditional_motion",

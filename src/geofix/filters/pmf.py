@@ -76,10 +76,9 @@ from geofix.filters._grid_ops import REGRID_COPIES, check_regrid
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.hypothesis_offset import HypothesisOffset
 from geofix.filters.likelihood import TerrainLikelihood, check_field_variance, node_field_variance
-from geofix.filters.motion import MOTION_MODELS, InsErrorState, RandomWalk
+from geofix.filters.motion import MOTION_MODELS, ErrorStateTrack, InsErrorState, RandomWalk
 from geofix.filters.nuisance import check_map_model
 from geofix.maps.grid import Grid
-from geofix.nav.errstate import ErrorState
 from geofix.problem import MatchProblem
 
 
@@ -103,17 +102,9 @@ class PmfState:
         Node likelihoods evaluated so far.
     regrids : int
         Times the log-density was moved onto a new grid.
-    kf : tuple or None
-        ``(mu (d,), Sigma (d, d))`` of the INS error state (``model=errstate``).
-    errstate : ErrorState or None
-        The error model along the indicated track (``model=errstate``).
-    indicated : numpy.ndarray or None
-        ``(2,)`` indicated position at the current sample (``model=errstate``), metres.
-    step : int
-        Current sample index.
-    dvl : numpy.ndarray or None
-        ``(n, 2)`` ``v_INS - v_DVL`` at every sample, m/s, when a DVL aids
-        (``model=errstate``).
+    track : ErrorStateTrack or None
+        The error-state motion model's own part (``model=errstate``): the Kalman filter of
+        the INS error state along the indicated track, and the DVL's innovations.
     offset : HypothesisOffset or None
         Each node's common offset (``map_model=imperfect``), from the first ping on.
     """
@@ -125,11 +116,7 @@ class PmfState:
     cell: float
     evaluations: int = 0
     regrids: int = 0
-    kf: tuple[np.ndarray, np.ndarray] | None = None
-    errstate: ErrorState | None = None
-    indicated: np.ndarray | None = None
-    step: int = 0
-    dvl: np.ndarray | None = None
+    track: ErrorStateTrack | None = None
     offset: HypothesisOffset | None = None
 
     @property
