@@ -212,7 +212,21 @@ class CommonOffset:
 
     @classmethod
     def prior(cls, std: float, walk: float, t: float) -> CommonOffset:
-        """``N(0, std^2)`` at time ``t`` (seconds) with the walk rate (units^2 / s).
+        """``N(0, std^2)`` at time ``t`` with the walk rate.
+
+        Parameters
+        ----------
+        std : float
+            Prior 1-sigma, map units (0: no offset is modelled).
+        walk : float
+            Variance gained per second, map units squared per second.
+        t : float
+            Time of the prior, seconds.
+
+        Returns
+        -------
+        CommonOffset
+            The prior.
 
         Raises
         ------
