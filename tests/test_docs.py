@@ -154,3 +154,38 @@ def test_pages_cite_only_what_the_repository_holds():
         text = page.read_text()
         assert "ALGORITHMS.md" not in text, page.name
         assert not MACHINE_PATH.search(text), page.name
+
+
+def test_every_guide_page_is_in_the_guide_navigation():
+    toctree = (DOCS / "guide" / "index.md").read_text()
+    entries = set(re.search(r"```\{toctree\}\n(.*?)```", toctree, flags=re.S).group(1).split())
+    pages = {p.stem for p in DOCS.glob("guide/*.md")} - {"index"}
+    assert pages <= entries, pages - entries
+    assert "guide/index" in (DOCS / "index.md").read_text()
+    assert (DOCS / "_templates" / "layout.html").exists()
+
+
+def _printed_by(page: Path, tmp_path, capsys) -> str:
+    (code,) = re.findall(r"```python\n(.*?)```", page.read_text(), flags=re.S)
+    exec(compile(code, str(page), "exec"), {"__name__": "guide"})
+    return capsys.readouterr().out.strip()
+
+
+def test_navigator_guide_prints_what_the_page_says(tmp_path, monkeypatch, capsys):
+    page = DOCS / "guide" / "navigator.md"
+    monkeypatch.chdir(tmp_path)
+    printed = _printed_by(page, tmp_path, capsys)
+    assert f"`{printed}`" in " ".join(page.read_text().split())
+
+
+def test_replay_guide_table_is_what_the_command_prints(tmp_path):
+    from geofix.logs.gridmap import grid_log
+    from geofix.replay import replay_log
+
+    _, path = grid_log("builtin:ex1811", 50.0, tmp_path / "ex1811_50m.nc")
+    result, _ = replay_log("builtin:ex1811", str(path), ["pmf", "pf"], None, 500.0, 1)
+    text = " ".join((DOCS / "guide" / "replay.md").read_text().split())
+    for name, row in result.summary["methods"].items():
+        cells = [row[k] for k in ("end_error_m", "mean_error_m", "max_error_m", "converged_at_s")]
+        assert " │ ".join([f"│ {name}", *(f"{v:.1f}" for v in cells)]) in text, name
+    assert f'"converged_pings": {result.summary["methods"]["pmf"]["converged_pings"]}' in text
