@@ -21,9 +21,7 @@ import base64
 import dataclasses
 import html
 import io
-import json
 import math
-import sqlite3
 from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -35,10 +33,15 @@ import pandas as pd
 from geofix._atomic import check_target, write_text_atomic
 from geofix._version import __version__
 from geofix.errors import ConfigError, GeofixError
-from geofix.evaluate.store import STORE_NAME, ResultStore, store_errors
+from geofix.evaluate.store import (
+    STORE_NAME,
+    SUMMARY_NAME,
+    ResultStore,
+    read_summary,
+    store_errors,
+)
 from geofix.methods import available_methods, method_settings, parse_method_spec
 
-SUMMARY_NAME = "summary.json"
 REPORT_NAME = "report.html"
 CAMPAIGN_FIGURE_NAME = "campaign.png"
 
@@ -101,31 +104,26 @@ def read_campaign(out_dir: str | Path) -> Campaign:
         store holds no complete set of rows for the summary's campaign.
     """
     out = Path(out_dir)
-    summary = _read_summary(out / SUMMARY_NAME)
+    summary = _read_summary(out)
     if not (out / STORE_NAME).is_file():
         raise ConfigError(f"no results store {out / STORE_NAME} (run `geofix run --out {out}`)")
     with store_errors(out / STORE_NAME), ResultStore(out) as store:
         rows = store.to_frame()
-    shash, frame = _campaign_rows(rows, summary, out)
+        shash, frame = _campaign_rows(rows, summary, out)
+        bounds = store.trial_bounds(shash)
     figure = out / CAMPAIGN_FIGURE_NAME
     return Campaign(
         summary=summary,
         frame=frame,
-        trial_crlb_m=_trial_bounds(out / STORE_NAME, shash),
+        trial_crlb_m=_trial_crlb_m(bounds),
         figure_png=figure.read_bytes() if figure.is_file() else None,
     )
 
 
-def _read_summary(path: Path) -> dict:
-    if not path.is_file():
-        raise ConfigError(f"no campaign summary {path} (run `geofix run --out {path.parent}`)")
-    try:
-        summary = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as exc:
-        reason = "nested too deeply" if isinstance(exc, RecursionError) else exc
-        raise ConfigError(f"cannot read campaign summary {path}: {reason}") from None
-    if not isinstance(summary, dict):
-        raise ConfigError(f"campaign summary {path} is not a JSON object")
+def _read_summary(out: Path) -> dict:
+    """``out/summary.json`` (:func:`geofix.evaluate.store.read_summary`), keys checked."""
+    summary = read_summary(out)
+    path = out / SUMMARY_NAME
     missing = {"scenario", "trials", "methods"} - set(summary)
     if missing:
         raise ConfigError(f"campaign summary {path} lacks keys {sorted(missing)}")
@@ -230,20 +228,9 @@ def _summary_gap(group: pd.DataFrame, summary: dict) -> float:
     return gap
 
 
-def _trial_bounds(store_path: Path, shash: str) -> dict[int, float]:
-    """Per-trial recursive CRLB (metres) from the store's ``trial_bounds`` table."""
-    try:
-        db = sqlite3.connect(f"file:{store_path}?mode=ro", uri=True)
-        try:
-            cur = db.execute(
-                "SELECT trial, crlb_var_m2 FROM trial_bounds WHERE scenario_hash = ?", (shash,)
-            )
-            rows = cur.fetchall()
-        finally:
-            db.close()
-    except sqlite3.Error:
-        return {}
-    return {int(t): math.sqrt(v) for t, v in rows if v is not None and v >= 0}
+def _trial_crlb_m(bounds: dict) -> dict[int, float]:
+    """Per-trial recursive CRLB, metres, from the store's trial bounds (those known)."""
+    return {t: math.sqrt(i.crlb_var_m2) for t, i in bounds.items() if i.crlb_var_m2 >= 0}
 
 
 def method_description(spec: str) -> str:

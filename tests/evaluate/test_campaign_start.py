@@ -18,7 +18,7 @@ import yaml
 
 from conftest import small_mission_data
 from geofix.errors import ConfigError
-from geofix.evaluate import campaign, run_campaign
+from geofix.evaluate import _pool, campaign, run_campaign
 from geofix.sim.scenario import load_scenario
 
 METHODS = ["tercom", "tercom:metric=mad"]
@@ -68,10 +68,10 @@ def test_forked_and_spawned_workers_give_the_one_process_table(tmp_path):
 def test_unknown_start_method_is_refused(monkeypatch):
     monkeypatch.setenv(campaign.START_METHOD_ENV, "forkserver")
     with pytest.raises(ConfigError, match="GEOFIX_START_METHOD must be one of"):
-        campaign.worker_start_method()
+        _pool.worker_start_method()
 
 
 def test_spawn_is_used_while_another_thread_runs(monkeypatch):
     monkeypatch.delenv(campaign.START_METHOD_ENV, raising=False)
-    monkeypatch.setattr(campaign.threading, "active_count", lambda: 2)
-    assert campaign.worker_start_method() == "spawn"
+    monkeypatch.setattr(_pool.threading, "active_count", lambda: 2)
+    assert _pool.worker_start_method() == "spawn"

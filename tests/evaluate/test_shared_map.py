@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from geofix.evaluate import _shared_map
-from geofix.evaluate.campaign import _bounded, _pending_count, _pending_tasks
+from geofix.evaluate._pool import bounded
+from geofix.evaluate.campaign import _pending_count, _pending_tasks
 from geofix.maps.grid import Grid
 
 
@@ -71,7 +72,7 @@ def test_bounded_submission_keeps_few_tasks_in_flight():
             return future
 
         results = []
-        for value in _bounded(submit, iter(range(100)), 5):
+        for value in bounded(submit, iter(range(100)), 5):
             in_flight[0] -= 1
             results.append(value)
     assert sorted(results) == [2 * t for t in range(100)]
@@ -79,16 +80,16 @@ def test_bounded_submission_keeps_few_tasks_in_flight():
 
 
 def test_chunks_follow_the_measured_task_time_and_share_out_the_last_tasks():
-    from geofix.evaluate.campaign import CHUNK_TARGET_S, MAX_CHUNK, _Chunker
+    from geofix.evaluate._pool import CHUNK_TARGET_S, MAX_CHUNK, Chunker
 
-    chunker = _Chunker(iter(range(1000)), left=1000, jobs=2)
+    chunker = Chunker(iter(range(1000)), left=1000, jobs=2)
     assert [len(chunker.next()) for _ in range(3)] == [1, 1, 1]  # nothing measured yet
     chunker.observe(3, 3 * CHUNK_TARGET_S / 10)  # tasks of a tenth of the target
     assert len(chunker.next()) == 10
     chunker.observe(1000, 1e-6)  # very quick tasks: capped
     assert len(chunker.next()) == MAX_CHUNK
     # near the end a chunk holds at most the tasks left over twice the workers
-    rest = _Chunker(iter(range(20)), left=20, jobs=2)
+    rest = Chunker(iter(range(20)), left=20, jobs=2)
     rest.observe(1, 1e-6)
     sizes = []
     while chunk := rest.next():

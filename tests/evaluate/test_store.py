@@ -143,10 +143,10 @@ def test_uncommitted_rows_reach_other_readers_only_after_commit(tmp_path):
 
 
 def test_a_batch_interrupted_by_ctrl_c_is_still_committed(tmp_path):
-    from geofix.evaluate.campaign import _Batches
+    from geofix.evaluate.store import Batches
 
     store = ResultStore(tmp_path)
-    with pytest.raises(KeyboardInterrupt), _Batches(store) as batches:
+    with pytest.raises(KeyboardInterrupt), Batches(store) as batches:
         for trial in range(3):
             store.record("tiny", "h1", "tercom", trial, _result(1.0), commit=False)
             batches.recorded()

@@ -29,6 +29,8 @@ import numpy as np
 from geofix.errors import MapError
 from geofix.maps.grid import Grid
 from geofix.maps.io import float32_rounding
+from geofix.sim.scenario import Scenario
+from geofix.sim.simulate import prepare_map
 
 FLOAT32_SHARE_OF_NOISE = 0.01
 """Largest float32 rounding error allowed, as a share of the sensor noise 1-sigma: the
@@ -121,6 +123,18 @@ def attach(handle: SharedGridHandle) -> Grid:
     values = np.ndarray(handle.shape, dtype=np.dtype(handle.dtype), buffer=block.buf)
     values.flags.writeable = False
     return Grid(values, **handle.fields)
+
+
+def campaign_map(scenario: Scenario) -> Grid:
+    """The scenario's map as a campaign holds it (and simulates its trials on).
+
+    Prepared once (:func:`geofix.sim.simulate.prepare_map`), read straight into float32
+    where that rounds no value by more than a hundredth of the sensor noise, and stored
+    so: ``simulate_trial(scenario, campaign_map(scenario), i)`` is the campaign's trial
+    ``i``.
+    """
+    noise = scenario.sensor.noise_std
+    return as_storage(prepare_map(scenario, float32_within(noise)), noise)
 
 
 def as_storage(grid: Grid, noise_std: float) -> Grid:

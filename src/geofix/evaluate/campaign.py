@@ -1,63 +1,31 @@
 """Campaigns: every trial of a scenario with every method, in a process pool or on Dask.
 
-The map is loaded and prepared once, in the calling process, stored in float32 when
-that rounds no value by more than a hundredth of the sensor noise
-(:mod:`geofix.evaluate._shared_map`; a metric netCDF map is read straight into float32,
-block by block, never as a full float64 copy), and held once per machine: forked local
-workers share the calling process's read-only pages, spawned ones map one read-only
-shared-memory copy, Dask workers get it by one broadcast ``scatter``. Tasks
-are submitted a few per worker at a time, so memory does not grow with the number of
-trials. A task is one trial
-index with the methods still to run on it, so each trial is simulated once per task. A
-local worker receives its tasks in chunks of about :data:`CHUNK_TARGET_S` of measured
-work (one task at first; never more than the tasks left over twice the workers), so that
-quick trials do not spend their time in sending tasks and results: on 400 TERCOM trials
-of about 4 ms, chunks took ``--jobs 2`` from 1.4x to 1.65-1.7x the speed of ``--jobs 1``.
-Workers return results; the calling process writes them to the store as they complete, so
-an interrupted campaign resumes where it stopped. The generator of method ``m`` on trial
-``i`` depends only on ``(seed, i, m)``: the same command gives the same table whatever the
+:func:`run_campaign` checks the methods, the output folder and trial 0 before anything
+runs, prepares the map once in the calling process (:func:`campaign_map`), hands the
+tasks still to do -- one trial index with the methods still to run on it, so each trial
+is simulated once for all of them (:class:`~geofix.evaluate.runner.TaskRunner`) -- to an
+executor, and writes the results to the store (:mod:`geofix.evaluate.store`) as they
+complete, so an interrupted campaign resumes where it stopped. The executors: this
+process (``jobs=1``), the local process pool (:mod:`geofix.evaluate._pool`) or a Dask
+cluster (:mod:`geofix.evaluate._dask`). The generator of method ``m`` on trial ``i``
+depends only on ``(seed, i, m)``: the same command gives the same table whatever the
 number of jobs or the scheduler (wall times aside).
 
-Beside each trial's results the worker computes the trial's Cramér–Rao bounds
-(:func:`geofix.evaluate.crlb.trial_crlb`) and keeps its true end point; both go to a side
-table ``trial_bounds`` of the same SQLite file (older stores gain it, and its newer
-columns, on first use, and trials resumed without them are filled in by the calling
-process). They give the summary's ``crlb_m`` (error-state bound), ``crlb_track_m``,
-``crlb_rw_m`` (random-walk bound) and ``crlb_batch_m``, and the Mahalanobis distance of
-each end error used by the false-fix rule.
-
-Starting local workers (:func:`worker_start_method`): on Linux they are forked from the
-calling process when that is safe -- no other Python thread runs, and numba's threading
-layer is not started (``import geofix`` starts none) or is a fork-safe one (GNU OpenMP
-is not) -- and spawned otherwise. Measured on the 40-trial TERCOM
-benchmark (``benchmarks/bench_campaign.py``): a spawned worker spends seconds importing
-geofix, numpy, pandas, numba and pydantic and loading its compiled kernels before its
-first trial, longer than the whole campaign takes on one core, while a forked one starts
-in milliseconds with all of that inherited; a forkserver would still import once and
-its workers' parent is not the campaign's, which the parent-death watchdog relies on.
-The pool is started before the first progress report (a progress bar may start a
-thread). The start method does not change a result: every trial's generators depend
-only on the seed, the trial and the method.
+Beside each trial's results the worker computes the trial's bounds
+(:func:`geofix.evaluate.bounds.trial_info`: the Cramér–Rao bounds, and the valid bound's
+terms when asked) and keeps its true end point; they go to the store's ``trial_bounds``
+table (trials resumed without them are filled in by the calling process). They give the
+summary's ``crlb_m`` (error-state bound), ``crlb_track_m``, ``crlb_rw_m`` (random-walk
+bound), ``crlb_batch_m``, ``valid_bound_m`` and ``valid_bound_track_m``, and the
+Mahalanobis distance of each end error used by the false-fix rule.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import importlib
-import itertools
-import json
-import multiprocessing
 import os
-import sqlite3
-import sys
-import threading
-import time
-import warnings
 from collections import Counter
-from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
+from collections.abc import Callable, Generator, Iterator
 from contextlib import closing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -65,56 +33,48 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from geofix import _threads
-from geofix._atomic import write_text_atomic
-from geofix.errors import ConfigError, GeofixError, GeofixWarning
-from geofix.evaluate import _shared_map
-from geofix.evaluate._workers import bind_to_parent, sigint_deferred, stop_workers
-from geofix.evaluate.crlb import rms_bound, scenario_beam_variance, trial_crlb
+from geofix.errors import ConfigError, GeofixError
+from geofix.evaluate._dask import run_dask
+from geofix.evaluate._pool import (
+    START_METHOD_ENV,
+    check_jobs,
+    run_pool,
+    usable_cores,
+    worker_start_method,
+)
+from geofix.evaluate._shared_map import campaign_map
+from geofix.evaluate.bounds import TrialInfo, crlb_summary, trial_info, valid_bound
 from geofix.evaluate.metrics import end_mahalanobis, summarize
-from geofix.evaluate.runner import TrialResult, method_rng, run_trial
-from geofix.evaluate.store import STORE_NAME, ResultStore, scenario_hash, store_errors
+from geofix.evaluate.runner import Done, Task, TaskRunner
+from geofix.evaluate.store import (
+    STORE_NAME,
+    SUMMARY_NAME,
+    Batches,
+    ResultStore,
+    scenario_hash,
+    store_errors,
+    write_summary,
+)
 from geofix.evaluate.summary import CampaignSummary
 from geofix.maps.grid import Grid
 from geofix.methods import parse_method_spec
 from geofix.sim.scenario import Scenario, with_overrides
+from geofix.sim.simulate import simulate_trial
+from geofix.sim.trial import Trial
 
-SUMMARY_NAME = "summary.json"
-
-# (spec, method) pairs of one task, and what a task returns: its (spec, trial, result)
-# triples and the trial's bounds.
-_Task = tuple[int, list[tuple[str, object]]]
-
-
-@dataclass(frozen=True)
-class TrialInfo:
-    """Per-trial facts stored beside the results.
-
-    Parameters
-    ----------
-    index : int
-        Trial number.
-    crlb_var_m2 : float
-        Trace of the error-state CRLB at the last sample, m^2.
-    crlb_batch_var_m2 : float
-        ``trace(J^-1)`` of the batch CRLB of the last leg, m^2 (``inf`` if singular).
-    truth_end : tuple of float
-        True position at the last sample, metres.
-    crlb_track_var_m2 : float
-        Trace of the error-state CRLB averaged along the track, m^2.
-    crlb_rw_var_m2 : float
-        Trace of the random-walk CRLB at the last sample, m^2.
-    """
-
-    index: int
-    crlb_var_m2: float
-    crlb_batch_var_m2: float
-    truth_end: tuple[float, float]
-    crlb_track_var_m2: float = float("nan")
-    crlb_rw_var_m2: float = float("nan")
-
-
-_Done = tuple[list[tuple[str, int, TrialResult]], TrialInfo]
+__all__ = [
+    "START_METHOD_ENV",
+    "SUMMARY_NAME",
+    "CampaignResult",
+    "TrialInfo",
+    "campaign_map",
+    "check_methods_fit",
+    "check_out_dir",
+    "run_campaign",
+    "trial_info",
+    "usable_cores",
+    "worker_start_method",
+]
 
 
 @dataclass
@@ -168,6 +128,7 @@ def run_campaign(
     out_dir: str | Path = "out",
     scheduler=None,
     progress: Callable[[int, int], None] | None = None,
+    valid_bound: bool = False,
 ) -> CampaignResult:
     """Run every method on the first ``trials`` trials of a scenario, resuming stored work.
 
@@ -193,6 +154,11 @@ def run_campaign(
         Called as ``progress(done, total)`` with the number of (method, trial) results
         computed so far and to compute in this call: once before the first, then after
         each (:class:`geofix.console.ProgressBar` draws a bar on the terminal).
+    valid_bound : bool
+        Also compute every trial's valid bound (the larger of the error-state CRLB, the
+        Ziv–Zakai bound and the genie's MMSE under the simulator's prior of the start
+        error, :mod:`geofix.evaluate.bounds`; far costlier than the CRLBs), store it and
+        summarise it as ``valid_bound_m`` and ``valid_bound_track_m``.
 
     Returns
     -------
@@ -220,52 +186,37 @@ def run_campaign(
     """
     scenario = with_overrides(scenario, trials, seed)
     parsed = _parse_methods(methods)
-    jobs = _check_jobs(jobs)
+    jobs = check_jobs(jobs)
     out = Path(out_dir)
     check_out_dir(out)
-    simulate = importlib.import_module("geofix.sim.simulate")
     grid = campaign_map(scenario)
-    check_methods_fit(parsed, simulate.simulate_trial(scenario, grid, 0))
+    first = simulate_trial(scenario, grid, 0)
+    check_methods_fit(parsed, first)
+    runner = TaskRunner(simulate_trial, scenario, valid_bound)
     shash = scenario_hash(scenario)
     with store_errors(out / STORE_NAME), ResultStore(out) as store:
         done_keys = store.done_keys(shash)
-        n_tasks, n_results = _pending_count(parsed, scenario.trials, done_keys)
+        n_tasks, total = _pending_count(parsed, scenario.trials, done_keys)
         tasks = _pending_tasks(parsed, scenario.trials, done_keys)
-        backend = _backend(jobs, scheduler, n_tasks)
         computed = 0
         report = progress or _no_progress
-        total = n_results
-        bounds = _open_bounds(store)
+        store.open_bounds()
         # local workers start here, before the first report (a progress bar's thread)
-        results = backend(simulate.simulate_trial, scenario, grid, tasks)
-        with closing(results), _Batches(store) as batches:
+        results = _executor(jobs, scheduler, n_tasks)(runner, grid, tasks, first)
+        with closing(results), Batches(store) as batches:
             report(0, total)
             for done, info in results:
                 for spec, index, result in done:
                     store.record(scenario.name, shash, spec, index, result, commit=False)
-                _record_info(bounds, shash, info, commit=False)
+                store.record_bounds(shash, info, commit=False)
                 batches.recorded()
                 computed += len(done)
                 report(computed, total)
-        infos = _all_infos(bounds, shash, scenario, grid, simulate.simulate_trial)
+        infos = _all_infos(store, shash, runner, grid, first)
         frame = _campaign_frame(store.to_frame(shash, arrays=True), list(parsed), scenario.trials)
     frame = _with_integrity(frame, infos)
-    result = _finish(scenario, grid, frame, out, store.path, computed, infos)
+    result = _finish(scenario, grid, frame, out, store.path, computed, infos, valid_bound)
     return dataclasses.replace(result, scenario_hash=shash)
-
-
-def campaign_map(scenario: Scenario) -> Grid:
-    """The scenario's map as a campaign holds it (and simulates its trials on).
-
-    Prepared once (:func:`geofix.sim.simulate.prepare_map`), read straight into float32
-    where that rounds no value by more than a hundredth of the sensor noise, and stored
-    so (:mod:`geofix.evaluate._shared_map`): ``simulate_trial(scenario, campaign_map(
-    scenario), i)`` is the campaign's trial ``i``.
-    """
-    simulate = importlib.import_module("geofix.sim.simulate")
-    noise = scenario.sensor.noise_std
-    grid = simulate.prepare_map(scenario, _shared_map.float32_within(noise))
-    return _shared_map.as_storage(grid, noise)
 
 
 def _no_progress(done: int, total: int) -> None:
@@ -283,7 +234,7 @@ def check_out_dir(out: Path) -> None:
     """
     if out.exists() and not out.is_dir():
         raise GeofixError(f"--out {out} is a file, not a folder")
-    for name in (SUMMARY_NAME, "results.sqlite"):
+    for name in (SUMMARY_NAME, STORE_NAME):
         if (out / name).is_dir():
             raise GeofixError(f"{out / name} is a folder; remove it or choose another --out")
     existing = next((p for p in (out, *out.parents) if p.exists()), None)
@@ -320,7 +271,7 @@ def _parse_methods(methods: list[str]) -> dict[str, object]:
     return {spec: parse_method_spec(spec) for spec in methods}
 
 
-def _pending_tasks(parsed: dict, trials: int, done: set) -> Iterator[_Task]:
+def _pending_tasks(parsed: dict, trials: int, done: set) -> Iterator[Task]:
     """The tasks still to run, made one at a time (memory does not grow with ``trials``)."""
     for index in range(trials):
         todo = [(spec, m) for spec, m in parsed.items() if (spec, index) not in done]
@@ -344,20 +295,22 @@ def _campaign_frame(frame: pd.DataFrame, specs: list[str], trials: int) -> pd.Da
     return frame.reset_index(drop=True)
 
 
-def _finish(scenario, grid, frame, out: Path, store_path: Path, computed: int, infos: dict):
+def _finish(scenario, grid, frame, out: Path, store_path, computed: int, infos, valid: bool):
     chosen = [infos[i] for i in range(scenario.trials)]
+    end, track = valid_bound(chosen) if valid else (None, None)
+    crlb = crlb_summary(chosen)
     summary = CampaignSummary(
         scenario=scenario.name,
         trials=scenario.trials,
-        crlb_m=rms_bound([i.crlb_var_m2 for i in chosen]),
-        crlb_batch_m=rms_bound([i.crlb_batch_var_m2 for i in chosen]),
-        crlb_track_m=rms_bound([i.crlb_track_var_m2 for i in chosen]),
-        crlb_rw_m=rms_bound([i.crlb_rw_var_m2 for i in chosen]),
+        crlb_m=crlb["crlb_m"],
+        crlb_batch_m=crlb["crlb_batch_m"],
+        crlb_track_m=crlb["crlb_track_m"],
+        crlb_rw_m=crlb["crlb_rw_m"],
+        valid_bound_m=end,
+        valid_bound_track_m=track,
         methods=summarize(frame, grid.cell_size),
     )
-    summary_path = out / SUMMARY_NAME
-    text = json.dumps(summary.to_json(), indent=2, allow_nan=False) + "\n"
-    write_text_atomic(summary_path, text)  # whole or absent: a report never reads half
+    summary_path = write_summary(out, summary.to_json())
     return CampaignResult(
         scenario=scenario.name,
         trials=scenario.trials,
@@ -368,170 +321,23 @@ def _finish(scenario, grid, frame, out: Path, store_path: Path, computed: int, i
     )
 
 
-# --------------------------------------------------------------------------- execution
-def run_task(simulate_trial: Callable, scenario: Scenario, grid: Grid, task: _Task) -> _Done:
-    """Simulate trial ``task[0]`` once and run each of its pending methods on it.
-
-    Parameters
-    ----------
-    simulate_trial : callable
-        ``simulate_trial(scenario, grid, index) -> Trial``.
-    scenario : Scenario
-        The scenario (its seed seeds the methods' generators).
-    grid : Grid
-        The prepared map.
-    task : tuple
-        ``(index, [(spec, method), ...])``.
-
-    Returns
-    -------
-    tuple
-        ``([(spec, index, TrialResult) per method], TrialInfo)``.
-    """
-    index, methods = task
-    trial = simulate_trial(scenario, grid, index)
-    _warm_up(methods, trial, grid, scenario.seed)
-    done = [
-        (spec, index, run_trial(method, trial, grid, method_rng(scenario.seed, index, spec)))
-        for spec, method in methods
-    ]
-    return done, trial_info(scenario, grid, trial)
-
-
-_WARMED: set[str] = set()
-
-
-def _warm_up(methods, trial, grid: Grid, seed: int) -> None:
-    """Run each method once, untimed, the first time this process meets it.
-
-    Times per match then exclude one-time costs (lazy imports, compiled kernels loaded
-    from the cache, first-touch allocations) that would otherwise land on whichever
-    trial a worker happens to run first. Results are unaffected: every timed call gets
-    its own freshly seeded generator.
-    """
-    for spec, method in methods:
-        if spec not in _WARMED:
-            run_trial(method, trial, grid, method_rng(seed, trial.index, spec))
-            _WARMED.add(spec)
-
-
-def trial_info(scenario: Scenario, grid: Grid, trial) -> TrialInfo:
-    """The CRLBs (per-beam sensor plus map-error variance) and true end point of a trial."""
-    bound = trial_crlb(trial, grid, scenario_beam_variance(scenario, trial.offsets))
-    end = np.asarray(trial.truth[-1], dtype=float)
-    return TrialInfo(
-        trial.index,
-        bound.recursive_var_m2,
-        bound.batch_var_m2,
-        (float(end[0]), float(end[1])),
-        bound.track_var_m2,
-        bound.rw_var_m2,
-    )
-
-
-# --------------------------------------------------------------------------- trial bounds
-_BOUNDS_SCHEMA = """
-CREATE TABLE IF NOT EXISTS trial_bounds (
-    scenario_hash TEXT NOT NULL,
-    trial INTEGER NOT NULL,
-    crlb_var_m2 REAL,
-    crlb_batch_var_m2 REAL,
-    truth_end_x REAL NOT NULL,
-    truth_end_y REAL NOT NULL,
-    crlb_track_var_m2 REAL,
-    crlb_rw_var_m2 REAL,
-    PRIMARY KEY (scenario_hash, trial)
-)
-"""
-_BOUNDS_COLUMNS = ("crlb_track_var_m2", "crlb_rw_var_m2")
-
-
-#: Longest time recorded results wait for their commit, seconds. A commit costs about
-#: 0.3 ms in the calling process (as much as a tenth of a quick trial, on cores it shares
-#: with the workers), so results are committed in batches; a campaign killed outright
-#: loses at most this much work, which a rerun does again.
-COMMIT_INTERVAL_S = 0.05
-
-
-class _Batches:
-    """Commit the store's open transaction every :data:`COMMIT_INTERVAL_S`, and on exit.
-
-    On exit the batch is committed whatever ends the loop (the last result, Ctrl-C, a
-    worker that died), so nothing recorded is lost.
-    """
-
-    def __init__(self, store: ResultStore) -> None:
-        self.store = store
-        self.last = time.perf_counter()
-
-    def recorded(self) -> None:
-        """Results were recorded: commit them if the last commit is old enough."""
-        now = time.perf_counter()
-        if now - self.last >= COMMIT_INTERVAL_S:
-            self.store.commit()
-            self.last = now
-
-    def __enter__(self) -> _Batches:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.store.commit()
-
-
-def _open_bounds(store: ResultStore) -> sqlite3.Connection:
-    """The store's connection, its ``trial_bounds`` side table created if missing."""
-    db = store.connection
-    try:
-        db.execute(_BOUNDS_SCHEMA)
-        have = {row[1] for row in db.execute("PRAGMA table_info(trial_bounds)")}
-        for column in _BOUNDS_COLUMNS:
-            if column not in have:  # a store of an earlier version: its rows are refilled
-                db.execute(f"ALTER TABLE trial_bounds ADD COLUMN {column} REAL")
-        db.commit()
-    except sqlite3.Error as exc:
-        raise GeofixError(f"cannot open results store {store.path}: {exc}") from None
-    return db
-
-
-def _record_info(db: sqlite3.Connection, shash: str, info: TrialInfo, commit: bool = True) -> None:
-    row = (
-        shash,
-        info.index,
-        info.crlb_var_m2,
-        info.crlb_batch_var_m2,
-        *info.truth_end,
-        info.crlb_track_var_m2,
-        info.crlb_rw_var_m2,
-    )
-    names = "scenario_hash, trial, crlb_var_m2, crlb_batch_var_m2, truth_end_x, truth_end_y, "
-    names += ", ".join(_BOUNDS_COLUMNS)
-    db.execute(f"INSERT OR REPLACE INTO trial_bounds ({names}) VALUES ({', '.join('?' * 8)})", row)
-    if commit:
-        db.commit()
-
-
-def _all_infos(db: sqlite3.Connection, shash: str, scenario, grid, simulate_trial) -> dict:
+def _all_infos(store: ResultStore, shash: str, runner: TaskRunner, grid: Grid, first) -> dict:
     """Stored trial infos of a scenario, computing (and storing) those that are missing."""
-    cur = db.execute(
-        "SELECT trial, crlb_var_m2, crlb_batch_var_m2, truth_end_x, truth_end_y, "
-        + ", ".join(_BOUNDS_COLUMNS)
-        + " FROM trial_bounds WHERE scenario_hash = ?",
-        (shash,),
-    )
-    infos = {
-        int(t): TrialInfo(int(t), _real(v), _real(b), (float(x), float(y)), _real(tr), _real(rw))
-        for t, v, b, x, y, tr, rw in cur
-    }
+    infos = store.trial_bounds(shash)
+    scenario = runner.scenario
     for index in range(scenario.trials):
         info = infos.get(index)
-        if info is None or np.isnan([info.crlb_var_m2, info.crlb_rw_var_m2]).any():
-            infos[index] = trial_info(scenario, grid, simulate_trial(scenario, grid, index))
-            _record_info(db, shash, infos[index])
+        if info is None or _incomplete(info, runner.valid_bound):
+            trial = first if index == 0 else runner.simulate_trial(scenario, grid, index)
+            infos[index] = trial_info(scenario, grid, trial, runner.valid_bound)
+            store.record_bounds(shash, infos[index])
     return infos
 
 
-def _real(value) -> float:
-    return float("nan") if value is None else float(value)
+def _incomplete(info: TrialInfo, valid: bool) -> bool:
+    """The stored info lacks a bound (a store of an earlier version, or not asked then)."""
+    missing = np.isnan([info.crlb_var_m2, info.crlb_rw_var_m2]).any()
+    return bool(missing or (valid and not info.has_valid_bound))
 
 
 def _with_integrity(frame: pd.DataFrame, infos: dict) -> pd.DataFrame:
@@ -551,360 +357,22 @@ def _with_integrity(frame: pd.DataFrame, infos: dict) -> pd.DataFrame:
     return frame.drop(columns=["estimate", "error", "covariance"])
 
 
-def _check_jobs(jobs: int | None) -> int:
-    cores = usable_cores()
-    if jobs is None:
-        return cores
-    jobs = int(jobs)
-    if jobs < 1:
-        raise ConfigError(f"jobs (--jobs) must be at least 1, got {jobs}")
-    if jobs > cores:
-        warnings.warn(
-            f"--jobs {jobs} is more than the {cores} usable cores; using {cores}",
-            GeofixWarning,
-            stacklevel=3,
-        )
-        return cores
-    return jobs
-
-
-def usable_cores() -> int:
-    """CPU cores this process may run on (its affinity mask where the system has one)."""
-    try:
-        return max(len(os.sched_getaffinity(0)), 1)
-    except (AttributeError, OSError):
-        return os.cpu_count() or 1
-
-
-def _backend(jobs: int, scheduler, n_tasks: int) -> Callable:
+def _executor(jobs: int, scheduler, n_tasks: int) -> Callable[..., Generator[Done, None, None]]:
+    """``execute(runner, grid, tasks, first_trial)``: the local pool, Dask or this process."""
     if scheduler is not None:
-        return lambda *args: _run_dask(scheduler, *args)
+        return lambda runner, grid, tasks, first: run_dask(scheduler, runner, grid, tasks)
     if jobs == 1 or n_tasks <= 1:
         return _run_inline
     workers = min(jobs, n_tasks)
-
-    def pool(simulate_trial, scenario, grid, tasks):
-        return _run_pool(workers, simulate_trial, scenario, grid, tasks, total=n_tasks)
-
-    return pool
+    return lambda runner, grid, tasks, first: run_pool(workers, runner, grid, tasks, n_tasks, first)
 
 
-def _run_inline(simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
+def _run_inline(runner: TaskRunner, grid: Grid, tasks, first: Trial | None) -> Generator:
+    """Run the tasks in this process, one after the other."""
     for task in tasks:
-        yield run_task(simulate_trial, scenario, grid, task)
+        yield runner(grid, task, first)
 
 
-_WORKER_GRID: Grid | None = None
-# Tasks in flight per local worker: enough to keep every worker busy, few enough that
-# memory does not grow with the number of trials.
-_IN_FLIGHT_PER_WORKER = 4
-#: Environment variable forcing how local workers start: ``spawn``, or ``fork`` (still
-#: only where it is safe, see :func:`worker_start_method`). Unset: fork where safe.
-START_METHOD_ENV = "GEOFIX_START_METHOD"
-_START_METHODS = ("fork", "spawn")
-_FORK_SAFE_NUMBA_LAYERS = ("workqueue", "tbb")
-
-
-def worker_start_method() -> str:
-    """How local campaign workers are started now: ``"fork"`` or ``"spawn"``.
-
-    ``fork`` on Linux when no other Python thread runs and numba's threading layer is
-    not started or is fork-safe (:func:`_fork_is_safe`), else ``spawn``. ``GEOFIX_START_METHOD
-    =spawn`` always spawns.
-
-    Raises
-    ------
-    ConfigError
-        ``GEOFIX_START_METHOD`` is neither ``fork`` nor ``spawn``.
-    """
-    asked = os.environ.get(START_METHOD_ENV, "").strip().lower() or "fork"
-    if asked not in _START_METHODS:
-        raise ConfigError(f"{START_METHOD_ENV} must be one of {_START_METHODS}, got {asked!r}")
-    if asked == "spawn" or not sys.platform.startswith("linux"):
-        return "spawn"
-    return "fork" if _fork_is_safe() else "spawn"
-
-
-def _fork_is_safe() -> bool:
-    """No other Python thread, and no numba thread pool that a fork would break.
-
-    A fork copies only the calling thread: a lock another Python thread holds would stay
-    held in the child. numba's ``omp`` layer (GNU OpenMP) once started in the parent
-    -- by any parallel kernel run or loaded from the cache -- hangs the child's first
-    parallel kernel, even on one thread (measured); ``workqueue`` and ``tbb`` are
-    fork-safe. The native pools of OpenBLAS and jemalloc handle fork themselves.
-    """
-    if threading.active_count() > 1:
-        return False
-    parallel = sys.modules.get("numba.np.ufunc.parallel")
-    if parallel is None or not getattr(parallel, "_is_initialized", False):
-        return True
-    try:
-        return parallel.threading_layer() in _FORK_SAFE_NUMBA_LAYERS
-    except ValueError:  # pragma: no cover - initialized means a layer was chosen
-        return False
-
-
-def _init_worker(source, parent_pid: int | None = None) -> None:
-    """Pool initializer: die with the parent; take the map; one numba thread.
-
-    ``source`` is the map itself in a forked worker (its pages shared with the parent,
-    read-only) or a :class:`~geofix.evaluate._shared_map.SharedGridHandle` to map.
-    """
-    global _WORKER_GRID
-    if parent_pid is not None:
-        bind_to_parent(parent_pid)
-    _WORKER_GRID = source if isinstance(source, Grid) else _shared_map.attach(source)
-    _threads.use_serial_kernels()  # one thread per worker: no thread pool to start
-
-
-def _pool_chunk(simulate_trial, scenario, chunk: list[_Task]) -> tuple[list[_Done], float]:
-    """Run the tasks of a chunk in this worker: their results and the seconds they took."""
-    grid = _WORKER_GRID
-    if grid is None:  # pragma: no cover - _init_worker maps it in every worker
-        raise RuntimeError("campaign worker has no map: its initializer did not run")
-    start = time.perf_counter()
-    done = [run_task(simulate_trial, scenario, grid, task) for task in chunk]
-    return done, time.perf_counter() - start
-
-
-#: Wanted duration of one chunk of tasks sent to a local worker, seconds: long enough
-#: that sending the tasks and receiving their results (about 1 ms a future in the calling
-#: process, which shares the cores with the workers) is a small part of it.
-CHUNK_TARGET_S = 0.05
-#: Most tasks in one chunk (a killed campaign loses at most the chunks in flight).
-MAX_CHUNK = 32
-
-
-class _Chunker:
-    """Cut the task stream into chunks of about :data:`CHUNK_TARGET_S` of work.
-
-    The first chunks hold one task; from then on the size follows the measured mean
-    duration of a task in the workers, and never exceeds the tasks left over twice the
-    workers (so that the last chunks still share out evenly). ``left`` is the number of
-    tasks in the stream (None: unknown, no such cap).
-    """
-
-    def __init__(self, tasks: Iterator[_Task], left: int | None = None, jobs: int = 1) -> None:
-        self.tasks = tasks
-        self.left = left
-        self.jobs = max(int(jobs), 1)
-        self.count = 0
-        self.seconds = 0.0
-
-    def observe(self, count: int, seconds: float) -> None:
-        """Record that ``count`` tasks took ``seconds`` in a worker."""
-        self.count += count
-        self.seconds += seconds
-
-    def unpack(self, result: tuple[list[_Done], float]) -> list[_Done]:
-        """The results of a finished chunk (:func:`_pool_chunk`), its duration recorded."""
-        done, seconds = result
-        self.observe(len(done), seconds)
-        return done
-
-    def size(self) -> int:
-        """Tasks in the next chunk."""
-        if self.count == 0 or self.seconds <= 0.0:
-            return 1
-        per_task = self.seconds / self.count
-        size = min(MAX_CHUNK, max(1, int(CHUNK_TARGET_S / per_task + 1e-9)))
-        if self.left is not None:
-            size = min(size, max(1, self.left // (2 * self.jobs)))
-        return size
-
-    def next(self) -> list[_Task]:
-        """The next chunk (empty when the tasks are exhausted)."""
-        chunk = list(itertools.islice(self.tasks, self.size()))
-        if self.left is not None:
-            self.left -= len(chunk)
-        return chunk
-
-
-def _run_pool(
-    jobs: int, simulate_trial, scenario, grid, tasks, total: int | None = None
-) -> Iterator[_Done]:
-    """Local worker processes sharing one read-only map; started now, results lazily."""
-    results = _pool_results(jobs, simulate_trial, scenario, grid, tasks, total)
-    next(results)  # workers start (and the first tasks go out) before any progress report
-    return results
-
-
-def _pool_results(
-    jobs: int, simulate_trial, scenario, grid, tasks, total: int | None = None
-) -> Iterator:
-    """Yield None once the workers are started, then their results (bounded submission)."""
-    method = worker_start_method()
-    tasks = iter(tasks)
-    first = None
-    if method == "fork":
-        first, method = _first_task_here(simulate_trial, scenario, grid, tasks)
-    context = multiprocessing.get_context(method)
-    with contextlib.ExitStack() as stack:
-        if method == "fork":  # the workers inherit the map's pages: nothing to copy
-            source = grid
-        else:
-            source = stack.enter_context(_shared_map.SharedGrid(grid, grid.values.dtype)).handle
-        pool = ProcessPoolExecutor(
-            jobs, context, initializer=_init_worker, initargs=(source, os.getpid())
-        )
-        finished = False
-        try:
-
-            def submit(chunk):
-                with sigint_deferred():  # a worker started by this submit holds Ctrl-C
-                    return pool.submit(_pool_chunk, simulate_trial, scenario, chunk)
-
-            try:
-                left = None if total is None else total - (first is not None)
-                chunker = _Chunker(tasks, left, jobs)
-                chunks = iter(chunker.next, [])  # sized as the results come in
-                limit = jobs * _IN_FLIGHT_PER_WORKER
-                results = _bounded(submit, chunks, limit, chunker.unpack)
-                yield None
-                if first is not None:
-                    yield first
-                yield from results
-            except BrokenProcessPool:
-                raise GeofixError(
-                    "a worker process died (killed, or out of memory); finished trials are "
-                    "stored: run the same command to resume"
-                ) from None
-            finished = True
-        finally:
-            if finished:
-                pool.shutdown(wait=True)
-            else:
-                stop_workers(pool)
-
-
-def _first_task_here(simulate_trial, scenario, grid, tasks: Iterator) -> tuple:
-    """Run the first task in this process, serially, before forking: ``(done, method)``.
-
-    The forked workers then inherit its loaded kernels and warmed-up methods instead of
-    each loading them again (about 0.1 s a worker for TERCOM, as long as a dozen of its
-    trials). ``method`` falls back to ``"spawn"`` should the run have left this process
-    unsafe to fork; ``done`` is None when there is no task.
-    """
-    task = next(tasks, None)
-    if task is None:
-        return None, "fork"
-    with _threads.serial_kernels_only():
-        done = run_task(simulate_trial, scenario, grid, task)
-    return done, "fork" if _fork_is_safe() else "spawn"
-
-
-def _bounded(submit: Callable, works: Iterator, limit: int, unpack=None) -> Iterator:
-    """Submit the first ``limit`` works now; then results as they complete (:func:`_drain`).
-
-    At most ``limit`` futures are in flight. ``unpack`` turns a future's result into the
-    results it stands for (a chunk's tasks); by default the result itself.
-    """
-    pending = {submit(work) for work in itertools.islice(works, limit)}
-    return _drain(submit, works, pending, unpack)
-
-
-def _drain(submit: Callable, works: Iterator, pending: set, unpack=None) -> Iterator:
-    """Results of the ``pending`` futures as they complete, one new work per finished one."""
-    while pending:
-        finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-        for future in finished:
-            results = [future.result()] if unpack is None else unpack(future.result())
-            for work in itertools.islice(works, 1):
-                pending.add(submit(work))
-            yield from results
-
-
-def _run_dask(scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
-    """Connect now (a bad address fails before the progress bar), then run lazily."""
-    client = _dask_client(scheduler)
-    return _dask_results(client, scheduler, simulate_trial, scenario, grid, tasks)
-
-
-def _dask_results(client, scheduler, simulate_trial, scenario, grid, tasks) -> Iterator[_Done]:
-    import distributed
-
-    with _quiet_dask_logs(), client:
-        try:
-            shared = client.scatter(grid, broadcast=True)
-            limit = _IN_FLIGHT_PER_WORKER * max(1, len(client.scheduler_info()["workers"]))
-            tasks = iter(tasks)
-
-            def submit(task):
-                return client.submit(run_task, simulate_trial, scenario, shared, task, pure=False)
-
-            running = distributed.as_completed([submit(t) for t in itertools.islice(tasks, limit)])
-            try:
-                for future in running:
-                    for task in itertools.islice(tasks, 1):
-                        running.add(submit(task))
-                    yield future.result()
-            finally:
-                with contextlib.suppress(Exception):
-                    client.cancel(list(running.futures))
-        except _dask_lost_errors() as exc:
-            raise GeofixError(
-                f"Dask scheduler {_label(scheduler)} lost the campaign's workers "
-                f"({type(exc).__name__}); finished trials are stored: rerun to resume"
-            ) from None
-
-
-#: Seconds to wait for a Dask scheduler (environment ``GEOFIX_DASK_TIMEOUT`` overrides).
-DASK_CONNECT_TIMEOUT_S = 10.0
-
-
-def _label(scheduler) -> str:
-    return repr(scheduler) if isinstance(scheduler, str) else type(scheduler).__name__
-
-
-@contextlib.contextmanager
-def _quiet_dask_logs():
-    """Silence Dask's own log records (reconnect tracebacks) while a campaign runs on it.
-
-    A lost cluster is reported once, as a :class:`GeofixError`, by :func:`_dask_results`.
-    """
-    import logging
-
-    names = [n for n in list(logging.root.manager.loggerDict) if n.startswith("distributed")]
-    loggers = [logging.getLogger(n) for n in ["distributed", *names]]
-    levels = [lg.level for lg in loggers]
-    for lg in loggers:
-        lg.setLevel(logging.CRITICAL + 1)
-    try:
-        yield
-    finally:
-        for lg, level in zip(loggers, levels, strict=True):
-            lg.setLevel(level)
-
-
-def _dask_client(scheduler):
-    """A ``distributed.Client``; GeofixError in one line when it cannot connect."""
-    import distributed
-
-    try:
-        timeout = float(os.environ.get("GEOFIX_DASK_TIMEOUT", DASK_CONNECT_TIMEOUT_S))
-    except ValueError:
-        timeout = DASK_CONNECT_TIMEOUT_S
-    try:
-        return distributed.Client(scheduler, timeout=timeout)
-    except (OSError, ValueError, TypeError, TimeoutError) as exc:
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise GeofixError(f"cannot use Dask scheduler {_label(scheduler)}: {first}") from None
-
-
-def _dask_lost_errors() -> tuple[type[BaseException], ...]:
-    """Exceptions that mean the Dask cluster went away (not a trial's own error)."""
-    import asyncio
-    import concurrent.futures
-
-    import distributed
-
-    errors: list = [asyncio.CancelledError, concurrent.futures.CancelledError, OSError]
-    errors += [getattr(distributed, n, None) for n in ("KilledWorker", "TimeoutError")]
-    for module, name in (
-        ("distributed.client", "FutureCancelledError"),
-        ("distributed.comm.core", "CommClosedError"),
-        ("distributed.scheduler", "KilledWorker"),
-    ):
-        errors.append(getattr(importlib.import_module(module), name, None))
-    return tuple(e for e in errors if isinstance(e, type))
+def _run_dask(scheduler, simulate, scenario: Scenario, grid: Grid, tasks) -> Iterator[Done]:
+    """:func:`geofix.evaluate._dask.run_dask` of the tasks, trials from ``simulate``."""
+    return run_dask(scheduler, TaskRunner(simulate, scenario), grid, tasks)

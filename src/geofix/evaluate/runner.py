@@ -18,6 +18,10 @@ scores (NEES, false fixes) and the one handed to the next leg.
 
 A recursive method (``recursive`` True) is handed the whole mission as one problem and
 returns its estimate at every sample.
+
+A campaign's unit of work is a *task* (:class:`TaskRunner`): one trial index with the
+methods still to run on it, so the trial is simulated once for all of them, and its
+bounds (:func:`geofix.evaluate.bounds.trial_info`) are computed where it was simulated.
 """
 
 from __future__ import annotations
@@ -25,13 +29,16 @@ from __future__ import annotations
 import dataclasses
 import time
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from geofix.errors import GeofixError, MemoryBudgetError
+from geofix.evaluate.bounds import TrialInfo, trial_info
 from geofix.maps.grid import Grid
 from geofix.problem import Fix, MatchProblem
+from geofix.sim.scenario import Scenario
 from geofix.sim.trial import Trial
 
 
@@ -258,3 +265,76 @@ def _result(trial: Trial, log: _CallLog) -> TrialResult:
         failed=failed,
         message=log.message or "",
     )
+
+
+#: A campaign task: a trial index and the ``(spec, method)`` pairs still to run on it.
+Task = tuple[int, list[tuple[str, object]]]
+#: What a task gives: its ``(spec, trial, result)`` triples and the trial's bounds.
+Done = tuple[list[tuple[str, int, TrialResult]], TrialInfo]
+
+
+@dataclass(frozen=True)
+class TaskRunner:
+    """Run a campaign's tasks: simulate the trial once, run its pending methods, bound it.
+
+    Picklable (it is sent to local and Dask workers with the tasks).
+
+    Parameters
+    ----------
+    simulate_trial : callable
+        ``simulate_trial(scenario, grid, index) -> Trial``.
+    scenario : Scenario
+        The scenario (its seed seeds the methods' generators).
+    valid_bound : bool
+        Also compute each trial's valid-bound terms
+        (:func:`geofix.evaluate.bounds.valid_bound_terms`).
+    """
+
+    simulate_trial: Callable
+    scenario: Scenario
+    valid_bound: bool = False
+
+    def __call__(self, grid: Grid, task: Task, trial: Trial | None = None) -> Done:
+        """Run one task on the prepared map.
+
+        Parameters
+        ----------
+        grid : Grid
+            The prepared map.
+        task : tuple
+            ``(index, [(spec, method), ...])``.
+        trial : Trial, optional
+            Trial ``index`` already simulated (used when its index matches).
+
+        Returns
+        -------
+        tuple
+            ``([(spec, index, TrialResult) per method], TrialInfo)``.
+        """
+        index, methods = task
+        seed = self.scenario.seed
+        if trial is None or trial.index != index:
+            trial = self.simulate_trial(self.scenario, grid, index)
+        _warm_up(methods, trial, grid, seed)
+        done = [
+            (spec, index, run_trial(method, trial, grid, method_rng(seed, index, spec)))
+            for spec, method in methods
+        ]
+        return done, trial_info(self.scenario, grid, trial, self.valid_bound)
+
+
+_WARMED: set[str] = set()
+
+
+def _warm_up(methods, trial: Trial, grid: Grid, seed: int) -> None:
+    """Run each method once, untimed, the first time this process meets it.
+
+    Times per match then exclude one-time costs (lazy imports, compiled kernels loaded
+    from the cache, first-touch allocations) that would otherwise land on whichever
+    trial a worker happens to run first. Results are unaffected: every timed call gets
+    its own freshly seeded generator.
+    """
+    for spec, method in methods:
+        if spec not in _WARMED:
+            run_trial(method, trial, grid, method_rng(seed, trial.index, spec))
+            _WARMED.add(spec)

@@ -1,9 +1,16 @@
-"""The results store: one SQLite file, one row per (scenario, method, trial).
+"""The results store: one SQLite file, one row per (scenario, method, trial), and the summary.
 
 Every finished trial is committed at once (write-ahead log), so a campaign that is killed
 loses nothing and a rerun with the same output folder skips what is done. Rows are keyed
 by the *scenario hash* (see :func:`scenario_hash`), so editing a scenario never mixes its
 old results with new ones.
+
+Beside the ``trials`` table, the side table ``trial_bounds`` holds each trial's bounds
+and true end point (:class:`~geofix.evaluate.bounds.TrialInfo`): one row per (scenario
+hash, trial), its columns grown over versions (an older store gains the newer columns on
+first use, :meth:`ResultStore.open_bounds`, and the rows it lacks them for are refilled
+by the campaign). The campaign's summary is ``summary.json`` in the same folder
+(:data:`SUMMARY_NAME`, :func:`write_summary`, :func:`read_summary`).
 """
 
 from __future__ import annotations
@@ -13,18 +20,23 @@ import hashlib
 import json
 import math
 import sqlite3
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from geofix.errors import GeofixError, MapError
+from geofix._atomic import write_text_atomic
+from geofix.errors import ConfigError, GeofixError, MapError
+from geofix.evaluate.bounds import TrialInfo
 from geofix.evaluate.runner import TrialResult
 from geofix.maps.bundled import BUILTIN_PREFIX, builtin_path
 from geofix.sim.scenario import Scenario
 
 STORE_NAME = "results.sqlite"
+#: The campaign summary beside the store (:func:`write_summary`).
+SUMMARY_NAME = "summary.json"
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS trials (
@@ -68,6 +80,35 @@ SCALAR_COLUMNS = (
 )
 _ARRAY_COLUMNS = ("covariance", "estimate", "error")
 _COLUMNS = SCALAR_COLUMNS + _ARRAY_COLUMNS
+
+_BOUNDS_SCHEMA = """
+CREATE TABLE IF NOT EXISTS trial_bounds (
+    scenario_hash TEXT NOT NULL,
+    trial INTEGER NOT NULL,
+    crlb_var_m2 REAL,
+    crlb_batch_var_m2 REAL,
+    truth_end_x REAL NOT NULL,
+    truth_end_y REAL NOT NULL,
+    crlb_track_var_m2 REAL,
+    crlb_rw_var_m2 REAL,
+    valid_track_m2 BLOB,
+    genie_track_m2 BLOB,
+    PRIMARY KEY (scenario_hash, trial)
+)
+"""
+#: Columns of ``trial_bounds`` added after its first version, with their SQL types.
+_BOUNDS_ADDED = {
+    "crlb_track_var_m2": "REAL",
+    "crlb_rw_var_m2": "REAL",
+    "valid_track_m2": "BLOB",
+    "genie_track_m2": "BLOB",
+}
+_BOUNDS_COLUMNS = (
+    *("scenario_hash", "trial", "crlb_var_m2", "crlb_batch_var_m2"),
+    *("truth_end_x", "truth_end_y", *_BOUNDS_ADDED),
+)
+#: Longest time recorded results wait for their commit, seconds (:class:`Batches`).
+COMMIT_INTERVAL_S = 0.05
 
 
 def scenario_hash(scenario: Scenario) -> str:
@@ -225,6 +266,86 @@ class ResultStore:
         if commit:
             self._db.commit()
 
+    def open_bounds(self) -> None:
+        """Create the ``trial_bounds`` side table if missing; add the columns it lacks.
+
+        Raises
+        ------
+        GeofixError
+            The store cannot be written.
+        """
+        try:
+            self._db.execute(_BOUNDS_SCHEMA)
+            have = self._bounds_columns()
+            for column, kind in _BOUNDS_ADDED.items():
+                if column not in have:  # a store of an earlier version: its rows are refilled
+                    self._db.execute(f"ALTER TABLE trial_bounds ADD COLUMN {column} {kind}")
+            self._db.commit()
+        except sqlite3.Error as exc:
+            raise GeofixError(f"cannot open results store {self.path}: {exc}") from None
+
+    def _bounds_columns(self) -> list[str]:
+        return [row[1] for row in self._db.execute("PRAGMA table_info(trial_bounds)")]
+
+    def record_bounds(self, shash: str, info: TrialInfo, commit: bool = True) -> None:
+        """Write (or overwrite) one trial's bounds (:meth:`open_bounds` first).
+
+        Valid-bound terms the ``info`` lacks keep their stored values.
+
+        Parameters
+        ----------
+        shash : str
+            Scenario hash (:func:`scenario_hash`).
+        info : TrialInfo
+            The trial's bounds (m^2) and true end point (metres).
+        commit : bool
+            False leaves the row in the open transaction until :meth:`commit`.
+        """
+        row = (
+            shash,
+            info.index,
+            info.crlb_var_m2,
+            info.crlb_batch_var_m2,
+            *info.truth_end,
+            info.crlb_track_var_m2,
+            info.crlb_rw_var_m2,
+            _array_blob(info.valid_track_m2),
+            _array_blob(info.genie_track_m2),
+        )
+        keep = ("valid_track_m2", "genie_track_m2")
+        update = ", ".join(
+            f"{c} = COALESCE(excluded.{c}, {c})" if c in keep else f"{c} = excluded.{c}"
+            for c in _BOUNDS_COLUMNS[2:]
+        )
+        self._db.execute(
+            f"INSERT INTO trial_bounds ({', '.join(_BOUNDS_COLUMNS)}) "
+            f"VALUES ({', '.join('?' * len(row))}) "
+            f"ON CONFLICT (scenario_hash, trial) DO UPDATE SET {update}",
+            row,
+        )
+        if commit:
+            self._db.commit()
+
+    def trial_bounds(self, shash: str) -> dict[int, TrialInfo]:
+        """The stored bounds of scenario hash ``shash``'s trials, by trial number.
+
+        Values a store of an earlier version lacks are NaN (the valid-bound terms None);
+        a store without the ``trial_bounds`` table gives ``{}``.
+        """
+        try:
+            have = set(self._bounds_columns())
+            if not have:
+                return {}
+            columns = [c if c in have else "NULL" for c in _BOUNDS_COLUMNS[1:]]
+            cur = self._db.execute(
+                f"SELECT {', '.join(columns)} FROM trial_bounds WHERE scenario_hash = ?",
+                (shash,),
+            )
+            rows = cur.fetchall()
+        except sqlite3.Error:
+            return {}
+        return {int(row[0]): _trial_info(row) for row in rows}
+
     def done_keys(self, shash: str) -> set[tuple[str, int]]:
         """``(method, trial)`` pairs already stored for scenario hash ``shash``."""
         cur = self._db.execute("SELECT method, trial FROM trials WHERE scenario_hash = ?", (shash,))
@@ -280,6 +401,99 @@ class ResultStore:
                 frame[col] = [json.dumps(_json_list(v)) for v in frame[col]]
             frame.to_csv(path, index=False)
         return path
+
+
+class Batches:
+    """Commit a store's open transaction every :data:`COMMIT_INTERVAL_S`, and on exit.
+
+    A commit costs as much as a tenth of a quick trial in the calling process (on cores
+    it shares with the workers), so results are committed in batches; a campaign killed
+    outright loses at most this much work, which a rerun does again. On exit the batch is
+    committed whatever ends the loop (the last result, Ctrl-C, a worker that died), so
+    nothing recorded is lost.
+
+    Parameters
+    ----------
+    store : ResultStore
+        The store whose results are recorded with ``commit=False``.
+    """
+
+    def __init__(self, store: ResultStore) -> None:
+        self.store = store
+        self.last = time.perf_counter()
+
+    def recorded(self) -> None:
+        """Results were recorded: commit them if the last commit is old enough."""
+        now = time.perf_counter()
+        if now - self.last >= COMMIT_INTERVAL_S:
+            self.store.commit()
+            self.last = now
+
+    def __enter__(self) -> Batches:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.store.commit()
+
+
+def write_summary(out_dir: str | Path, summary: dict) -> Path:
+    """Write a campaign's summary (its JSON object) to ``out_dir/summary.json``.
+
+    Written to a temporary name and renamed: whole or absent, a report never reads half.
+    Returns the path.
+    """
+    path = Path(out_dir) / SUMMARY_NAME
+    text = json.dumps(summary, indent=2, allow_nan=False) + "\n"
+    write_text_atomic(path, text)
+    return path
+
+
+def read_summary(out_dir: str | Path) -> dict:
+    """The JSON object of ``out_dir/summary.json``.
+
+    Raises
+    ------
+    ConfigError
+        The file is missing, unreadable, not JSON or not a JSON object.
+    """
+    path = Path(out_dir) / SUMMARY_NAME
+    if not path.is_file():
+        raise ConfigError(f"no campaign summary {path} (run `geofix run --out {path.parent}`)")
+    try:
+        summary = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError) as exc:
+        reason = "nested too deeply" if isinstance(exc, RecursionError) else exc
+        raise ConfigError(f"cannot read campaign summary {path}: {reason}") from None
+    if not isinstance(summary, dict):
+        raise ConfigError(f"campaign summary {path} is not a JSON object")
+    return summary
+
+
+def _trial_info(row: tuple) -> TrialInfo:
+    """A :class:`TrialInfo` from a ``trial_bounds`` row (without the scenario hash)."""
+    t, v, b, x, y, tr, rw, valid, genie = row
+    return TrialInfo(
+        int(t),
+        _nan(v),
+        _nan(b),
+        (float(x), float(y)),
+        _nan(tr),
+        _nan(rw),
+        _blob_array(valid),
+        _blob_array(genie),
+    )
+
+
+def _nan(value) -> float:
+    return float("nan") if value is None else float(value)
+
+
+def _array_blob(values) -> bytes | None:
+    return None if values is None else np.ascontiguousarray(values, dtype="<f8").tobytes()
+
+
+def _blob_array(blob) -> np.ndarray | None:
+    return None if blob is None else np.frombuffer(blob, dtype="<f8").copy()
 
 
 def _row(scenario: str, shash: str, method: str, trial: int, r: TrialResult) -> tuple:

@@ -109,6 +109,10 @@ class CampaignSummary:
         The bound on the RMS error along the track (over samples and trials), metres.
     crlb_rw_m : float or None
         The bound of a random-walk position error on the end-point RMS error, metres.
+    valid_bound_m, valid_bound_track_m : float or None
+        The valid bound on the end-point RMS error and on the RMS error along the track,
+        metres (:func:`geofix.evaluate.bounds.valid_bound`): in the JSON object only for a
+        campaign that computed it (``run_campaign(..., valid_bound=True)``).
     methods : dict
         ``{spec: MethodStats}`` in the order the methods were given.
     more : dict
@@ -129,6 +133,8 @@ class CampaignSummary:
     crlb_batch_m: float | None = None
     crlb_track_m: float | None = None
     crlb_rw_m: float | None = None
+    valid_bound_m: float | None = None
+    valid_bound_track_m: float | None = None
     methods: dict[str, MethodStats] = field(default_factory=dict)
     more: dict[str, Any] = field(default_factory=dict)
 
@@ -142,6 +148,9 @@ class CampaignSummary:
             "crlb_rw_m": self.crlb_rw_m,
             "crlb_batch_m": self.crlb_batch_m,
         }
+        for key in ("valid_bound_m", "valid_bound_track_m"):
+            if getattr(self, key) is not None:
+                head[key] = getattr(self, key)
         methods = {spec: stats.to_json() for spec, stats in self.methods.items()}
         return {**head, **self.more, "methods": methods}
 
