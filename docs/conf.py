@@ -136,6 +136,20 @@ def write_namespace_page(path: Path = HERE / "api" / "namespace.rst") -> Path:
 
 write_namespace_page()
 
+
+def clear_generated_pages(folder: Path = HERE / "api" / "generated") -> list[Path]:
+    """Delete the API pages autosummary wrote at the last build; the paths removed.
+
+    autosummary writes a page per documented name and rewrites them at every build, but
+    never deletes one: a name moved or renamed since the last build would leave a page
+    that fails to import, or one outside every toctree (warnings, errors under ``-W``).
+    """
+    pages = sorted(folder.glob("*.rst"))
+    for page in pages:
+        page.unlink(missing_ok=True)
+    return pages
+
+
 #: ``0 .. n-1`` inside an inline literal: autosummary cuts the one-line summary at its
 #: ". ", leaving the literal open; an ellipsis reads the same and is not cut.
 _RANGE_IN_LITERAL = re.compile(r"``([^`]*?) \.\. ([^`]*?)``")
@@ -146,5 +160,6 @@ def _keep_ranges_whole(app, what, name, obj, options, lines) -> None:
 
 
 def setup(app) -> None:
-    """Register the docstring hook above."""
+    """Clear the last build's API pages (before autosummary writes them); the hook above."""
+    clear_generated_pages()
     app.connect("autodoc-process-docstring", _keep_ranges_whole)

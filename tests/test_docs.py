@@ -189,3 +189,13 @@ def test_replay_guide_table_is_what_the_command_prints(tmp_path):
         cells = [row[k] for k in ("end_error_m", "mean_error_m", "max_error_m", "converged_at_s")]
         assert " │ ".join([f"│ {name}", *(f"{v:.1f}" for v in cells)]) in text, name
     assert f'"converged_pings": {result.summary["methods"]["pmf"]["converged_pings"]}' in text
+
+
+def test_generated_pages_of_the_last_build_are_cleared(tmp_path):
+    conf = _docs_conf()
+    for name in ("geofix.Navigator", "geofix.gone.Thing"):
+        (tmp_path / f"{name}.rst").write_text(f"{name}\n")
+    (tmp_path / "keep.txt").write_text("")
+    removed = conf.clear_generated_pages(tmp_path)
+    assert {p.stem for p in removed} == {"geofix.Navigator", "geofix.gone.Thing"}
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.txt"]
