@@ -325,7 +325,17 @@ def _error_bins(
 
 
 def histogram_figure(frame: pd.DataFrame, specs: list[str], crlb_m: float | None) -> bytes:
-    """End-point error histograms, one panel per method on a shared axis, as PNG bytes."""
+    """End-point error histograms, one panel per method on a shared axis, as PNG bytes.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The campaign's rows (:attr:`Campaign.frame`; end errors in metres).
+    specs : list of str
+        The methods, in the summary's order.
+    crlb_m : float or None
+        The campaign's RMS CRLB, metres (a dashed line; None: none).
+    """
     plt = _pyplot()
     errors = [_end_errors(frame, s) for s in specs]
     bins, log = _error_bins(errors, crlb_m)
@@ -349,7 +359,17 @@ def histogram_figure(frame: pd.DataFrame, specs: list[str], crlb_m: float | None
 
 
 def cdf_figure(frame: pd.DataFrame, specs: list[str], crlb_m: float | None) -> bytes:
-    """Empirical CDF of the end-point errors of every method, as PNG bytes."""
+    """Empirical CDF of the end-point errors of every method, as PNG bytes.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The campaign's rows (:attr:`Campaign.frame`; end errors in metres).
+    specs : list of str
+        The methods, in the summary's order.
+    crlb_m : float or None
+        The campaign's RMS CRLB, metres (a dashed line; None: none).
+    """
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.2))
     errors = [_end_errors(frame, s) for s in specs]
@@ -374,7 +394,17 @@ def cdf_figure(frame: pd.DataFrame, specs: list[str], crlb_m: float | None) -> b
 
 
 def trial_figure(frame: pd.DataFrame, specs: list[str], trial_crlb_m: dict[int, float]) -> bytes:
-    """End-point error of every trial and method beside the trial's own bound, as PNG bytes."""
+    """End-point error of every trial and method beside the trial's own bound, as PNG bytes.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The campaign's rows (:attr:`Campaign.frame`; end errors in metres).
+    specs : list of str
+        The methods, in the summary's order.
+    trial_crlb_m : dict of int to float
+        Each trial's recursive CRLB, metres (:attr:`Campaign.trial_crlb_m`).
+    """
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.2))
     markers = "os^Dv<>ph*"

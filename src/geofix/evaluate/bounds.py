@@ -234,7 +234,17 @@ def _genie_mean(squared_error) -> np.ndarray:
 
 
 def track_bound_rms(bounds: Mapping, suffix: str = "", genie: bool = True) -> float:
-    """RMS along the track of :func:`per_sample_bound`, metres."""
+    """RMS along the track of :func:`per_sample_bound`, metres.
+
+    Parameters
+    ----------
+    bounds : mapping
+        :func:`scenario_bound_tracks`'s arrays, m^2.
+    suffix : str
+        The prior (a key of :data:`PRIORS`).
+    genie : bool
+        Include the genie's mean squared error where it was computed.
+    """
     return float(np.sqrt(per_sample_bound(bounds, suffix, genie).mean()))
 
 

@@ -35,7 +35,7 @@ import pandas as pd
 
 from geofix.errors import ConfigError, GeofixError
 from geofix.evaluate._dask import run_dask
-from geofix.evaluate._pool import (
+from geofix.evaluate._pool import (  # noqa: F401 - also importable from here
     START_METHOD_ENV,
     check_jobs,
     run_pool,
@@ -61,20 +61,6 @@ from geofix.methods import parse_method_spec
 from geofix.sim.scenario import Scenario, with_overrides
 from geofix.sim.simulate import simulate_trial
 from geofix.sim.trial import Trial
-
-__all__ = [
-    "START_METHOD_ENV",
-    "SUMMARY_NAME",
-    "CampaignResult",
-    "TrialInfo",
-    "campaign_map",
-    "check_methods_fit",
-    "check_out_dir",
-    "run_campaign",
-    "trial_info",
-    "usable_cores",
-    "worker_start_method",
-]
 
 
 @dataclass

@@ -138,8 +138,17 @@ def false_fix_rate(ok: pd.DataFrame, trials: int, cell_m: float) -> float:
     A false fix ends farther than 3 cells (``cell_m`` metres each) from the truth, was not
     flagged ambiguous, and either gives no covariance or lies outside its 3-sigma ellipse
     (Mahalanobis distance > 3, column ``end_mahalanobis``; NaN = no covariance; without
-    the column every row counts as giving none). ``ok`` holds the rows of the trials that
-    did not fail; ``trials`` counts all of them.
+    the column every row counts as giving none).
+
+    Parameters
+    ----------
+    ok : pandas.DataFrame
+        The rows of the trials that did not fail (``end_error_m`` metres, ``ambiguous``,
+        optionally ``end_mahalanobis``).
+    trials : int
+        Number of trials, failed ones included.
+    cell_m : float
+        Map cell size, metres.
     """
     if not trials:
         return math.nan

@@ -235,6 +235,17 @@ def fix_variance(covariance, cell_m: float, free_sigma: float, initial_sigma: fl
     does not resolve a position within its cell) and at most ``free_sigma^2`` (the free
     INS's variance at the reset: a fix is never worse than no fix); ``initial_sigma^2``
     when the covariance is missing or not finite.
+
+    Parameters
+    ----------
+    covariance : array_like or None
+        ``(2, 2)`` covariance of the fix, m^2.
+    cell_m : float
+        Map cell size, metres.
+    free_sigma : float
+        1-sigma of the free INS at the reset, metres.
+    initial_sigma : float
+        1-sigma of the INS at the start, metres.
     """
     if covariance is None:
         return initial_sigma**2
