@@ -237,11 +237,15 @@ def test_maps_lists_bundled_maps_with_provenance():
         assert name in result.output
 
 
-def test_progress_phases_print_at_once_without_a_thread(capsys):
+def test_progress_phases_print_at_once_without_a_thread(capsys, monkeypatch):
     import threading
 
     from geofix.console import ProgressBar
 
+    with ProgressBar("piped") as bar:
+        bar.phase("preparing the map")  # not a terminal: stderr stays quiet
+    assert "preparing" not in capsys.readouterr().err
+    monkeypatch.setenv("FORCE_COLOR", "1")  # rich then draws as on a terminal
     before = threading.active_count()
     with ProgressBar("demo") as bar:
         bar.phase("preparing the map")
@@ -250,7 +254,7 @@ def test_progress_phases_print_at_once_without_a_thread(capsys):
         bar.phase("late")  # once the bar runs, phases are not printed
         bar(4, 4)
     err = capsys.readouterr().err
-    assert "demo: preparing the map..." in err and "late" not in err
+    assert "demo" in err and ": preparing the map..." in err and "late" not in err
 
 
 def test_summary_table_shows_the_crlb_beside_the_rms_error():

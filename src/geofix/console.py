@@ -22,9 +22,10 @@ from geofix.evaluate.summary import CampaignSummary
 class ProgressBar:
     """A rich progress bar on stderr, usable as ``run_campaign(..., progress=bar)``.
 
-    Before the first result, :meth:`phase` prints what is being done (preparing the map,
-    running the first trial), one still line each: no refresh thread runs before the
-    bar, since a campaign forks its workers only while no other thread runs.
+    Before the first result, :meth:`phase` prints what is being done on a terminal
+    (preparing the map, running the first trial), one still line each: no refresh thread
+    runs before the bar, since a campaign forks its workers only while no other thread
+    runs.
 
     Parameters
     ----------
@@ -58,9 +59,13 @@ class ProgressBar:
         self._started = False
 
     def phase(self, what: str) -> None:
-        """Print ``name: what...`` on stderr: a step before the first result (no bar yet)."""
-        if self._enabled and not self._started:
-            self._console.print(f"[bold]{escape(self._name)}[/]: {escape(what)}...")
+        """Print ``name: what...`` on stderr: a step before the first result (no bar yet).
+
+        Only on a terminal: piped or logged, stderr keeps to warnings and one-line errors.
+        """
+        if self._enabled and not self._started and self._console.is_terminal:
+            line = f"[bold]{escape(self._name)}[/]: {escape(what)}..."
+            self._console.print(line, highlight=False)
 
     def __enter__(self) -> ProgressBar:
         return self
