@@ -52,8 +52,8 @@ START_METHOD_ENV = "GEOFIX_START_METHOD"
 _START_METHODS = ("fork", "spawn")
 _FORK_SAFE_NUMBA_LAYERS = ("workqueue", "tbb")
 #: Wanted duration of one chunk of tasks sent to a local worker, seconds: long enough
-#: that sending the tasks and receiving their results (about 1 ms a future in the calling
-#: process, which shares the cores with the workers) is a small part of it.
+#: that sending the tasks and receiving their results (work of the calling process,
+#: which shares the cores with the workers) is a small part of it.
 CHUNK_TARGET_S = 0.05
 #: Most tasks in one chunk (a killed campaign loses at most the chunks in flight).
 MAX_CHUNK = 32
@@ -299,9 +299,8 @@ def _first_task_here(runner, grid, tasks: Iterator, first_trial=None) -> tuple:
     """Run the first task in this process, serially, before forking: ``(done, method)``.
 
     The forked workers then inherit its loaded kernels and warmed-up methods instead of
-    each loading them again (for TERCOM, as long as a dozen of its trials). ``method``
-    falls back to ``"spawn"`` should the run have left this process unsafe to fork;
-    ``done`` is None when there is no task.
+    each loading them again. ``method`` falls back to ``"spawn"`` should the run have
+    left this process unsafe to fork; ``done`` is None when there is no task.
     """
     task = next(tasks, None)
     if task is None:

@@ -406,11 +406,11 @@ class ResultStore:
 class Batches:
     """Commit a store's open transaction every :data:`COMMIT_INTERVAL_S`, and on exit.
 
-    A commit costs as much as a tenth of a quick trial in the calling process (on cores
-    it shares with the workers), so results are committed in batches; a campaign killed
-    outright loses at most this much work, which a rerun does again. On exit the batch is
-    committed whatever ends the loop (the last result, Ctrl-C, a worker that died), so
-    nothing recorded is lost.
+    A commit is not free in the calling process (which shares the cores with the
+    workers), so results are committed in batches; a campaign killed outright loses at
+    most this much work, which a rerun does again. On exit the batch is committed
+    whatever ends the loop (the last result, Ctrl-C, a worker that died), so nothing
+    recorded is lost.
 
     Parameters
     ----------
