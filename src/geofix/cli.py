@@ -81,6 +81,13 @@ def _stdout_width() -> int | None:
 
 
 _out = Console(width=_stdout_width())
+
+
+def _say(*objects, **kw) -> None:
+    """Print a message line on stdout, never wrapped (a path stays one piece to copy)."""
+    _out.print(*objects, soft_wrap=True, **kw)
+
+
 _err = Console(stderr=True)
 
 
@@ -236,7 +243,7 @@ def run(
             return
         _print_summary(result)
         if figure:
-            _out.print(f"figure: {_write_figure(scen, result, out)}")
+            _say(f"figure: {_write_figure(scen, result, out)}")
 
     _guarded(go, RESUMABLE)
 
@@ -260,7 +267,7 @@ def demo(
 
         scen = load_scenario(builtin_scenario("azores_demo"))
         methods = ["tercom", "pmf", "ins"]
-        _out.print(
+        _say(
             f"[bold]{scen.name}[/]: TERCOM and the point-mass filter against the free INS "
             "on the bundled Azores bathymetry"
         )
@@ -272,7 +279,7 @@ def demo(
                 scen, methods, trials=trials, jobs=jobs, out_dir=out, progress=bar
             )
         _print_summary(result)
-        _out.print(f"figure: {_write_figure(scen, result, out)}")
+        _say(f"figure: {_write_figure(scen, result, out)}")
 
     _guarded(go, RESUMABLE)
 
@@ -312,7 +319,7 @@ def methods(
     for setting, default, kind in method_settings(cls):
         table.add_row(setting, repr(default), kind, notes[setting])
     _out.print(table)
-    _out.print(f"use as: --method '{name}:{_example_setting(cls)}'", highlight=False)
+    _say(f"use as: --method '{name}:{_example_setting(cls)}'", highlight=False)
 
 
 def _example_setting(cls) -> str:
@@ -372,14 +379,14 @@ def suitability(
         crlb = result.crlb.values[np.isfinite(result.crlb.values)]
         if crlb.size:
             q = np.percentile(crlb, [10, 50, 90])
-            _out.print(
+            _say(
                 f"{grid!r}: CRLB of a {window_cells}-sample track (worst heading) "
                 f"p10 {q[0]:.3g} m, median {q[1]:.3g} m, p90 {q[2]:.3g} m"
             )
         paths = save_suitability(result, out)
         paths["figure"] = save_suitability_figure(result, out)
         for label, path in paths.items():
-            _out.print(f"{label}: {path}")
+            _say(f"{label}: {path}")
 
     _guarded(go)
 
@@ -398,7 +405,7 @@ def export(
         from geofix.sim.scenario import load_scenario
 
         path = export_trials(load_scenario(scenario), out, trials=trials, seed=seed)
-        _out.print(f"trials: {path}")
+        _say(f"trials: {path}")
 
     _guarded(go)
 
@@ -425,7 +432,7 @@ def report(
     def go():
         from geofix.report import write_report
 
-        _out.print(f"report: {write_report(out_dir, out)}")
+        _say(f"report: {write_report(out_dir, out)}")
 
     _guarded(go)
 
@@ -448,7 +455,7 @@ def grid_command(
 
         gridded, path = grid_log(soundings, cell_m, out, max_gap_cells=max_gap_cells)
         filled = float((~np.isnan(gridded.grid.values)).mean())
-        _out.print(f"{gridded.grid!r}: {filled:.0%} of cells with data; map: {path}")
+        _say(f"{gridded.grid!r}: {filled:.0%} of cells with data; map: {path}")
 
     import numpy as np
 
@@ -529,7 +536,7 @@ def replay_command(
             return
         _print_replay(result.summary)
         for label, path in paths.items():
-            _out.print(f"{label}: {path}")
+            _say(f"{label}: {path}")
 
     _guarded(go)
 
@@ -652,7 +659,7 @@ def _print_summary(result) -> None:
 
     _out.print(summary_table(result.summary, width=_out.width))
     for label, path in result.paths.items():
-        _out.print(f"{label}: {path}")
+        _say(f"{label}: {path}")
 
 
 def _write_figure(scen, result, out: Path) -> Path:

@@ -79,6 +79,17 @@ def register(cls: _M) -> _M:
     The class needs a ``name``, a ``recursive`` flag and ``match(problem, rng) -> Fix``
     (:class:`geofix.problem.Matcher`); its dataclass fields are its settings.
 
+    Parameters
+    ----------
+    cls : type
+        The method's dataclass; ``geofix methods`` describes it by its docstring's first
+        line and each setting by its ``Parameters`` entry.
+
+    Returns
+    -------
+    type
+        ``cls`` itself (a decorator).
+
     Raises
     ------
     TypeError
