@@ -17,7 +17,7 @@ every campaign trial.
 
 from geofix.filters.nuisance import unscented_points
 from geofix.navigator.core import Navigator, check_method_budget, method_size, start_problem
-from geofix.navigator.estimate import Estimate, mode_position
+from geofix.navigator.estimate import Estimate
 from geofix.navigator.health import innovation_nis, nis_limit, normalised_move
 from geofix.navigator.settings import STATUSES, NavigatorSettings
 
@@ -29,7 +29,6 @@ __all__ = [
     "check_method_budget",
     "innovation_nis",
     "method_size",
-    "mode_position",
     "nis_limit",
     "normalised_move",
     "start_problem",

@@ -57,9 +57,10 @@ from geofix.filters.base import Motion, Observation
 from geofix.filters.convergence import posterior_kl
 from geofix.filters.loop import FilterSettings, FilterStepper
 from geofix.filters.sizing import FilterSize, check_filter_budget, filter_size
+from geofix.filters.state import mode_position
 from geofix.maps.grid import Grid
 from geofix.measurement import map_error_variance
-from geofix.navigator.estimate import Estimate, estimate_fields, mode_position
+from geofix.navigator.estimate import Estimate, estimate_fields
 from geofix.navigator.health import Health, innovation_nis
 from geofix.navigator.intake import (
     PingIntake,

@@ -1,4 +1,4 @@
-"""The navigator's answer after an input, and the MLE position of a filter state."""
+"""The navigator's answer after an input."""
 
 from __future__ import annotations
 
@@ -80,30 +80,9 @@ class Estimate:
         }
 
 
-def mode_position(filt, state) -> np.ndarray:
-    """MLE position ``(2,)`` of a filter state, metres.
-
-    The filter's own ``mode(state)`` when it has one; else the highest-weight particle
-    (states with ``particles`` and ``log_weight``) or node (states with a point-mass
-    ``frame`` and ``log_weight``); else the mean.
-    """
-    mode = getattr(filt, "mode", None)
-    if callable(mode):
-        return np.asarray(mode(state), dtype=float)
-    log_weight = getattr(state, "log_weight", None)
-    if log_weight is not None and hasattr(state, "particles"):
-        return np.asarray(state.particles[int(np.argmax(log_weight))], dtype=float)
-    if log_weight is not None and hasattr(state, "frame"):
-        i, j = np.unravel_index(int(np.argmax(log_weight)), log_weight.shape)
-        u = np.array([i, j]) - 0.5 * (np.array(log_weight.shape) - 1)
-        centre, axes, spacing = state.frame
-        return np.asarray(centre + axes @ (u * spacing), dtype=float)
-    return np.asarray(filt.estimate(state)[0], dtype=float)
-
-
 def estimate_fields(estimate: Estimate) -> dict:
     """The fields of an estimate by name (to build another from it)."""
     return {f.name: getattr(estimate, f.name) for f in fields(estimate)}
 
 
-__all__ = ["Estimate", "estimate_fields", "mode_position"]
+__all__ = ["Estimate", "estimate_fields"]
