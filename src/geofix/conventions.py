@@ -26,7 +26,8 @@ Angles
 Fields
 ------
 - A map stores its field as it comes: bathymetry as elevation (negative below sea level),
-  gravity anomaly in mGal. ``Grid.kind`` is ``"depth"`` or ``"gravity"``;
+  gravity anomaly in mGal, magnetic anomaly in nT. ``Grid.kind`` is ``"depth"``,
+  ``"gravity"`` or ``"magnetic"``;
   ``Grid.units`` says the unit.
 
 Shapes
@@ -51,5 +52,6 @@ Units
 
 #: Largest magnitude of a measured value each field kind can physically have, map units:
 #: a seabed elevation within +-12 km (the deepest trench is 11 km), a free-air gravity
-#: anomaly within +-1000 mGal. Logged values beyond it are refused as poisoned.
-PHYSICAL_LIMITS = {"depth": 12_000.0, "gravity": 1_000.0}
+#: anomaly within +-1000 mGal, a magnetic reading within +-100 000 nT (the Earth's total
+#: field is below 70 000 nT). Logged values beyond it are refused as poisoned.
+PHYSICAL_LIMITS = {"depth": 12_000.0, "gravity": 1_000.0, "magnetic": 100_000.0}

@@ -113,7 +113,11 @@ def test_segment_number_and_default_longest(tmp_path):
     assert longest.duration_s == max(m.duration_s for m in missions)
     assert pick_segment(missions, 0) is missions[0]
     args = replay_args("--field", "magnetic", "--segment", "0", "--hours", "1", "--json")
-    # a magnetic residual (nT) on a depth map is the user's choice: no kind to check
+    # magnetic is a map kind: a magnetic residual (nT) needs a magnetic map, not a depth one
+    result = runner.invoke(app, [*args, "--out", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    assert "--field magnetic needs a magnetic map" in result.output
+    args = replay_args("--field", "depth", "--segment", "0", "--hours", "1", "--json")
     result = runner.invoke(app, [*args, "--out", str(tmp_path)])
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout)["pings"] > 50

@@ -285,7 +285,7 @@ def test_all_nan_map(tmp_path):
 
 def test_bad_kind():
     with pytest.raises(MapError, match="kind must be one of"):
-        load_grid("builtin:mb_1km", kind="magnetic")
+        load_grid("builtin:mb_1km", kind="seismic")
 
 
 def test_loaded_grid_is_a_grid(azores_small):

@@ -96,10 +96,14 @@ def default_offset_std(grid: Grid) -> float:
     -------
     float
         A depth map: ``5 m + 0.2 %`` of the median water depth (a tide, a datum, a
-        sound-speed error); a gravity map: 5 mGal.
+        sound-speed error); a gravity map: 5 mGal; a magnetic map: 20 nT (the diurnal
+        variation left after a base-station correction, and the offset between the
+        map's crustal model and the vehicle's reference field).
     """
     if grid.kind == "gravity":
         return GRAVITY_OFFSET_STD_MGAL
+    if grid.kind == "magnetic":
+        return 20.0  # nT
     values = np.asarray(grid.values, dtype=float)
     finite = values[np.isfinite(values)]
     depth = float(np.median(np.abs(finite))) if finite.size else 0.0

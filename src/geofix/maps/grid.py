@@ -9,12 +9,12 @@ import numpy as np
 from geofix.errors import MapError
 from geofix.maps import mapread
 
-KINDS = ("depth", "gravity")
+KINDS = ("depth", "gravity", "magnetic")
 
 
 @dataclass(frozen=True, eq=False)
 class Grid:
-    """A regular grid of a field (bathymetry or gravity anomaly) in a metric frame.
+    """A regular grid of a field (bathymetry, gravity or magnetic anomaly) in a metric frame.
 
     Parameters
     ----------
@@ -27,7 +27,8 @@ class Grid:
     dx, dy : float
         Cell size along x (east) and y (north), metres; both positive.
     kind : str
-        ``"depth"`` (elevation, metres, negative below sea level) or ``"gravity"`` (mGal).
+        ``"depth"`` (elevation, metres, negative below sea level), ``"gravity"`` (mGal)
+        or ``"magnetic"`` (magnetic anomaly, nT).
     units : str
         Unit of ``values``.
     name : str

@@ -38,8 +38,10 @@ NETCDF_SUFFIXES = (".nc", ".nc4", ".cdf", ".grd", ".netcdf")
 GEOTIFF_SUFFIXES = (".tif", ".tiff", ".gtiff")
 BAG_SUFFIXES = (".bag",)
 BAG_NODATA = 1e6
-DEFAULT_UNITS = {"depth": "m", "gravity": "mGal"}
+DEFAULT_UNITS = {"depth": "m", "gravity": "mGal", "magnetic": "nT"}
 _GRAVITY_WORDS = ("grav", "mgal", "free-air", "free air", "freeair", "anomaly")
+_MAGNETIC_WORDS = ("magnetic", "nanotesla", "total field")
+_MAGNETIC_TOKENS = ("nt", "tmi")
 _X_NAMES = ("x", "lon", "longitude", "long", "easting", "east")
 _Y_NAMES = ("y", "lat", "latitude", "northing", "north")
 #: Attribute of a saved grid whose infinite cells are meaningful (see :func:`save_grid`).
@@ -85,9 +87,10 @@ def load_grid(
         ``"builtin:NAME"`` for a bundled map (see :func:`geofix.maps.bundled_maps`).
     variable : str, optional
         netCDF variable (default: the only 2-D variable, else ``z``); GeoTIFF band number.
-    kind : {"depth", "gravity"}, optional
-        Field kind; by default "gravity" when the variable name, units or long name
-        mention gravity, mGal, free-air or anomaly, else "depth".
+    kind : {"depth", "gravity", "magnetic"}, optional
+        Field kind; by default "magnetic" when the variable name, units or long name
+        mention magnetic, nanotesla, total field or TMI (or the units are nT), else
+        "gravity" when they mention gravity, mGal, free-air or anomaly, else "depth".
     region : sequence of 4 floats, optional
         ``[west, east, south, north]`` in the file's own coordinates (degrees or metres),
         cut before projection and resampling.
@@ -707,6 +710,9 @@ def _crop(raw: _Raw, region, source: str) -> _Raw:
 
 def _detect_kind(text: str, default_kind: str | None) -> str:
     lowered = text.lower()
+    tokens = set(lowered.replace("_", " ").replace("(", " ").replace(")", " ").split())
+    if any(w in lowered for w in _MAGNETIC_WORDS) or tokens & set(_MAGNETIC_TOKENS):
+        return "magnetic"
     if any(word in lowered for word in _GRAVITY_WORDS):
         return "gravity"
     return default_kind or "depth"

@@ -1,4 +1,4 @@
-"""Sensors: single-beam and multibeam echosounders, gravimeter (noise, lag)."""
+"""Sensors: single-beam and multibeam echosounders, gravimeter (noise, lag), magnetometer."""
 
 from geofix.sensors.echosounder import (
     add_sensor_errors,

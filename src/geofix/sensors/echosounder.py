@@ -32,7 +32,7 @@ if TYPE_CHECKING:
 def sensor_offsets(spec: SensorSpec) -> np.ndarray:
     """Body-frame footprint offsets of the sensor's beams.
 
-    Single-beam and gravimeter: ``[[0, 0]]``. Multibeam: ``spec.beams`` beams with
+    Single-beam, gravimeter and magnetometer: ``[[0, 0]]``. Multibeam: ``spec.beams`` beams with
     ``along = 0``; if ``swath_angle_deg`` and ``altitude_m`` are both given, the beam
     angles are equally spaced over the swath and ``across = altitude * tan(angle)``;
     otherwise the beams are equally spaced over ``swath_width_m``. With an odd beam count

@@ -73,7 +73,7 @@ class MapSpec(Strict):
 
     path: str
     variable: str | None = None
-    kind: Literal["depth", "gravity"] | None = None
+    kind: Literal["depth", "gravity", "magnetic"] | None = None
     region: tuple[float, float, float, float] | None = None
     resample_m: float | None = Field(default=None, gt=0)
 

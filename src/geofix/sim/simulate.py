@@ -28,6 +28,7 @@ from geofix.nav.ins import position_sigma, simulate_ins
 from geofix.nav.trajectory import TrueTrajectory, true_trajectory
 from geofix.problem import footprint_xy
 from geofix.sensors.echosounder import beam_noise_std, sensor_offsets
+from geofix.sensors.spec import SensorSpec
 from geofix.sim.scenario import Scenario
 from geofix.sim.seabed import SeabedDraw, draw_seabed
 from geofix.sim.sensing import measure_with_unlagged
@@ -168,14 +169,19 @@ def check_sensor_fits_map(scenario: Scenario, grid: Grid) -> None:
     Raises
     ------
     ConfigError
-        A gravimeter on a depth map, or an echosounder on a gravity map.
+        A gravimeter on a map other than gravity, an echosounder on one other than
+        depth, a magnetometer on one other than magnetic.
     """
-    sensor = scenario.sensor.type
-    needs = "gravity" if sensor == "gravimeter" else "depth"
+    _check_kind(scenario.sensor, grid, "sensor.type", "map.kind")
+
+
+def _check_kind(sensor: SensorSpec, grid: Grid, key: str, kind_key: str) -> None:
+    """Raise ConfigError unless ``sensor`` reads the field of ``grid`` (keys for the message)."""
+    sensor, needs = sensor.type, sensor.kind
     if grid.kind != needs:
         raise ConfigError(
-            f"sensor.type {sensor} needs a {needs} map, but map {grid.name!r} is a "
-            f"{grid.kind} map; set map.kind: {needs} if the file holds {needs}"
+            f"{key} {sensor} needs a {needs} map, but map {grid.name!r} is a "
+            f"{grid.kind} map; set {kind_key}: {needs} if the file holds {needs}"
         )
 
 
