@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from geofix import InputError, Navigator
+from geofix import FreeIns, InputError, Navigator
 from geofix.errors import ConfigError, MemoryBudgetError
-from geofix.filters.base import observations
+from geofix.filters.base import RecursiveFilter, observations
 from geofix.logs import read_exported
-from geofix.methods import parse_method_spec
+from geofix.methods import available_methods, parse_method_spec
 from geofix.navigator import NavigatorSettings
 from geofix.problem import footprint_xy
 from geofix.replay import ReplayInput, drive
@@ -146,6 +146,12 @@ def test_inputs_are_validated_with_clear_errors(synthetic_grid):
 def test_bad_method_or_setting_is_a_config_error(synthetic_grid):
     with pytest.raises(ConfigError, match="batch matcher"):
         Navigator(synthetic_grid, "tercom")
+    with pytest.raises(ConfigError, match="'ins' cannot run ping by ping"):
+        Navigator(synthetic_grid, "ins")  # the free INS has no filter steps
+    with pytest.raises(ConfigError, match="'FreeIns' cannot run ping by ping"):
+        Navigator(synthetic_grid, FreeIns())
+    with pytest.raises(ConfigError, match="needs an INS error model"):
+        Navigator(synthetic_grid, "pmf:model=errstate")
     with pytest.raises(ConfigError, match="unknown setting"):
         Navigator(synthetic_grid, "pmf", {"gate": 3})
     with pytest.raises(ConfigError, match="unknown method"):
@@ -275,3 +281,22 @@ def test_min_beams_default_takes_single_beam_pings_and_gates_multibeam_ones(synt
     assert explicit.measure(t[-1], beams).accepted
     with pytest.raises(ConfigError, match="min_beams"):
         Navigator(synthetic_grid, "pmf", {"min_beams": 0})
+
+
+def test_every_recursive_filter_declares_what_the_navigator_reads():
+    declared = {}
+    for name, cls in available_methods().items():
+        if issubclass(cls, RecursiveFilter):
+            filt = cls()
+            assert filt.name == name and filt.recursive is True
+            declared[name] = (filt.needs_ins_model, filt.map_model, filt.carries_offset)
+    assert declared == {
+        "pmf": (False, "imperfect", True),
+        "pf": (False, "imperfect", True),
+        "mpf": (True, "imperfect", True),
+        "sitan": (False, "exact", False),
+        "sitan-bank": (False, "exact", False),
+    }
+    errstate = parse_method_spec("pmf:model=errstate,map_model=exact")
+    assert errstate.needs_ins_model and errstate.map_model == "exact"
+    assert not errstate.carries_offset

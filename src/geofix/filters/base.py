@@ -98,9 +98,37 @@ class Observation:
 
 
 class RecursiveFilter:
-    """Mixin for filter dataclasses: the matcher protocol on top of :func:`run_filter`."""
+    """Mixin for filter dataclasses: the matcher protocol on top of :func:`run_filter`.
 
+    It also declares what a filter says of itself to the loop that steps it
+    (:class:`geofix.filters.loop.FilterStepper`) and to the online navigator, with the
+    defaults a filter keeps unless it declares otherwise (as a class attribute, a
+    dataclass field or a property):
+
+    - ``name``: the registered method name (``"pmf"``, ``"sitan"``, ...);
+    - ``recursive``: True, the filter runs sample by sample;
+    - ``needs_ins_model``: False; True for a filter on the INS error state, which needs
+      an INS error model to start (``mpf``, ``pmf:model=errstate``);
+    - ``map_model``: ``"exact"``, what the likelihood assumes of the prior map
+      (:mod:`geofix.filters.nuisance`; ``pmf``, ``pf`` and ``mpf`` take it as a
+      setting);
+    - ``carries_offset``: False; True when each point of the state carries its own
+      common offset (``map_model=imperfect``).
+    """
+
+    name: ClassVar[str]
     recursive: ClassVar[bool] = True
+    map_model: str = "exact"
+
+    @property
+    def needs_ins_model(self) -> bool:
+        """The filter needs an INS error model to start (default: no)."""
+        return False
+
+    @property
+    def carries_offset(self) -> bool:
+        """Each point of the state carries its own common offset (default: no)."""
+        return False
 
     def match(self, problem: MatchProblem, rng: np.random.Generator) -> Fix:
         """Run the filter over the whole problem and return its estimate at every sample."""

@@ -53,7 +53,7 @@ from dataclasses import replace
 import numpy as np
 
 from geofix.errors import ConfigError, InputError, MatchError
-from geofix.filters.base import Motion, Observation
+from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.convergence import posterior_kl
 from geofix.filters.loop import FilterSettings, FilterStepper
 from geofix.filters.sizing import FilterSize, check_filter_budget, filter_size
@@ -72,7 +72,7 @@ from geofix.navigator.intake import (
 )
 from geofix.navigator.offset import OffsetEstimator
 from geofix.navigator.settings import NavigatorSettings
-from geofix.problem import MatchProblem
+from geofix.problem import Matcher, MatchProblem
 
 
 def start_problem(
@@ -162,13 +162,8 @@ class Navigator:
     def __init__(
         self, grid: Grid, method="pmf", settings=None, seed=0, map_error=None, ins_model=None
     ) -> None:
-        filt = _parse_method(method)
-        if not getattr(filt, "recursive", False):
-            raise ConfigError(
-                f"navigator: method {getattr(filt, 'name', method)!r} is a batch matcher; "
-                "use a recursive filter (pmf, pf, sitan, ...)"
-            )
-        if getattr(filt, "needs_ins_model", False) and ins_model is None:
+        filt = _recursive_filter(method)
+        if filt.needs_ins_model and ins_model is None:
             raise ConfigError(
                 f"navigator: method {method if isinstance(method, str) else filt.name!r} "
                 "needs an INS error model (ins_model; for geofix replay / serve: "
@@ -179,7 +174,7 @@ class Navigator:
         check_filter_budget(filt, settings.filter_settings(), grid)  # before it holds a point
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         self.method = method if isinstance(method, str) else filt.name
-        self.settings = settings.for_map_model(getattr(filt, "map_model", "exact"))
+        self.settings = settings.for_map_model(filt.map_model)
         self._stepper = FilterStepper(filt, grid, self.settings.filter_settings(), rng)
         self.map_error = map_error
         self.ins_model = ins_model
@@ -638,6 +633,25 @@ def _parse_method(method):
     from geofix.methods import parse_method_spec
 
     return parse_method_spec(method) if isinstance(method, str) else method
+
+
+def _recursive_filter(method) -> RecursiveFilter:
+    """The filter of a method spec or instance, refused unless it steps ping by ping.
+
+    Raises
+    ------
+    ConfigError
+        A batch matcher, or a method without the per-ping steps (the free INS ``ins``).
+    """
+    filt = _parse_method(method)
+    if isinstance(filt, RecursiveFilter):
+        return filt
+    label = method if isinstance(method, str) else type(method).__name__
+    stepped = isinstance(filt, Matcher) and filt.recursive
+    what = "cannot run ping by ping" if stepped else "is a batch matcher"
+    raise ConfigError(
+        f"navigator: method {label!r} {what}; use a recursive filter (pmf, pf, sitan, ...)"
+    )
 
 
 def _filter_settings(settings) -> FilterSettings:
