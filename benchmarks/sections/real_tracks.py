@@ -174,9 +174,9 @@ def _verdicts(segments: list[Segment]) -> str:
 # ---------------------------------------------------------------------- figure
 def _figure(cruise: str, segments: list[Segment]) -> str:
     """Track on the map beside each method's error against time with its 3-sigma band."""
-    from geofix.plot.figures import _pyplot
+    from geofix.plot.figures import pyplot
 
-    plt = _pyplot()
+    plt = pyplot()
     fig = plt.figure(figsize=(13, 7.5))
     grid = segments[0].grid
     ax_map = fig.add_subplot(1, 2, 1)

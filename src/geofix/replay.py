@@ -697,9 +697,9 @@ def replay_figure(result: ReplayResult, grid: Grid, path: Path) -> Path:
     pathlib.Path
         ``path``.
     """
-    from geofix.plot.figures import _pyplot, draw_track_map, save_figure, track_style
+    from geofix.plot.figures import draw_track_map, pyplot, save_figure, track_style
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax_map, ax_err) = plt.subplots(
         1, 2, figsize=(14, 5.8), width_ratios=[1.15, 1], constrained_layout=True
     )

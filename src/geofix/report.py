@@ -41,6 +41,7 @@ from geofix.evaluate.store import (
     store_errors,
 )
 from geofix.methods import available_methods, method_settings, parse_method_spec
+from geofix.plot.figures import pyplot
 
 REPORT_NAME = "report.html"
 CAMPAIGN_FIGURE_NAME = "campaign.png"
@@ -258,15 +259,6 @@ def spec_settings(spec: str) -> list[Setting]:
 
 
 # --------------------------------------------------------------------------- figures
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _ticker():
     import matplotlib.ticker
 
@@ -293,7 +285,7 @@ def _line_style(k: int, n: int) -> dict:
 
 
 def _colours(n: int) -> list:
-    cmap = _pyplot().get_cmap("tab10")
+    cmap = pyplot().get_cmap("tab10")
     return [cmap(k % 10) for k in range(n)]
 
 
@@ -306,7 +298,7 @@ def _end_errors(frame: pd.DataFrame, spec: str) -> np.ndarray:
 def _png(fig) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
-    _pyplot().close(fig)
+    pyplot().close(fig)
     return buf.getvalue()
 
 
@@ -336,7 +328,7 @@ def histogram_figure(frame: pd.DataFrame, specs: list[str], crlb_m: float | None
     crlb_m : float or None
         The campaign's RMS CRLB, metres (a dashed line; None: none).
     """
-    plt = _pyplot()
+    plt = pyplot()
     errors = [_end_errors(frame, s) for s in specs]
     bins, log = _error_bins(errors, crlb_m)
     fig, axes = plt.subplots(
@@ -370,7 +362,7 @@ def cdf_figure(frame: pd.DataFrame, specs: list[str], crlb_m: float | None) -> b
     crlb_m : float or None
         The campaign's RMS CRLB, metres (a dashed line; None: none).
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.2))
     errors = [_end_errors(frame, s) for s in specs]
     for k, (spec, err, colour) in enumerate(zip(specs, errors, _colours(len(specs)), strict=True)):
@@ -405,7 +397,7 @@ def trial_figure(frame: pd.DataFrame, specs: list[str], trial_crlb_m: dict[int, 
     trial_crlb_m : dict of int to float
         Each trial's recursive CRLB, metres (:attr:`Campaign.trial_crlb_m`).
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.2))
     markers = "os^Dv<>ph*"
     for k, (spec, colour) in enumerate(zip(specs, _colours(len(specs)), strict=True)):

@@ -9,7 +9,13 @@ import numpy as np
 from geofix.maps.grid import Grid
 
 
-def _pyplot():
+def pyplot():
+    """``matplotlib.pyplot``, imported on first use with the ``Agg`` backend unless one is set.
+
+    Every figure of geofix (here, the report's and the replay's) draws through it, so
+    importing geofix never imports matplotlib and a machine without a display can save
+    figures.
+    """
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -75,7 +81,7 @@ def campaign_figure(
     -------
     matplotlib.figure.Figure
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax_map, ax_err, ax_cdf) = plt.subplots(
         1, 3, figsize=(17, 5.6), width_ratios=[1.25, 1, 1], constrained_layout=True
     )
@@ -273,7 +279,7 @@ def error_band_figure(errors: dict[str, np.ndarray], limit_m: float | None = Non
     matplotlib.figure.Figure
         Two panels (log scale, kilometres): the first trial; the median and 10-90 % band.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True, constrained_layout=True)
     for k, (spec, e) in enumerate(errors.items()):
         colour, style, _ = track_style(k)
@@ -309,7 +315,7 @@ def leg_errors_figure(panels: dict[str, dict[str, np.ndarray]], limit_m: float |
     -------
     matplotlib.figure.Figure
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(
         1, len(panels), figsize=(5.5 * len(panels), 4), sharey=True, constrained_layout=True
     )
@@ -344,7 +350,7 @@ def success_rate_figure(panels: dict[str, dict[str, dict[str, float]]], xlabel: 
     -------
     matplotlib.figure.Figure
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(
         1, len(panels), figsize=(5 * len(panels), 3.8), sharey=True, constrained_layout=True
     )
@@ -385,4 +391,4 @@ def save_figure(fig, path: str | Path, dpi: int = 120, metadata: dict | None = N
             path, lambda part: fig.savefig(part, dpi=dpi, format=fmt, metadata=metadata)
         )
     finally:
-        _pyplot().close(fig)
+        pyplot().close(fig)
