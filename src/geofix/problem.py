@@ -21,6 +21,64 @@ if TYPE_CHECKING:
 
 
 @dataclass(frozen=True, eq=False)
+class MatchField:
+    """One more field a problem's vehicle measured (a gravimeter beside an echosounder).
+
+    What a recursive filter weighs besides the problem's own (primary) field; the batch
+    matchers and SITAN use the primary field only.
+
+    Parameters
+    ----------
+    grid : Grid
+        This field's prior map (same metric frame as the problem's).
+    measured : numpy.ndarray
+        ``(n, b)`` readings at the problem's samples, this map's units, NaN = missing.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame footprint offsets ``(across, along)``, metres.
+    noise_std : float
+        1-sigma of the sensor noise, map units (nadir value for a multibeam).
+    sensor : str
+        The sensor type (``"gravimeter"``, ``"magnetometer"``, ...).
+    beam_noise_std : numpy.ndarray or None
+        ``(b,)`` 1-sigma of every beam's noise, map units (None: ``noise_std``).
+    map_error_std : float
+        1-sigma of this map's own error, map units.
+    lag_s : float
+        The sensor's declared first-order lag time constant, seconds (0: none).
+    """
+
+    grid: Grid
+    measured: np.ndarray
+    offsets: np.ndarray
+    noise_std: float = 0.0
+    sensor: str = "gravimeter"
+    beam_noise_std: np.ndarray | None = None
+    map_error_std: float = 0.0
+    lag_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        lag = float(self.lag_s)
+        if not (np.isfinite(lag) and lag >= 0):
+            raise ConfigError(f"MatchField: lag_s must be finite and >= 0, got {self.lag_s}")
+        beams = np.asarray(self.offsets).shape[0]
+        if np.ndim(self.measured) != 2 or np.shape(self.measured)[1] != beams:
+            raise ConfigError(
+                f"MatchField: measured has shape {np.shape(self.measured)}, expected (n, {beams})"
+            )
+        if self.beam_noise_std is not None:
+            check_beam_noise_std(self.beam_noise_std, beams, "MatchField")
+
+    @property
+    def kind(self) -> str:
+        """The field's kind, its map's (``depth``, ``gravity``, ``magnetic``)."""
+        return self.grid.kind
+
+    def part(self, part: slice) -> MatchField:
+        """The same field over samples ``part``."""
+        return replace(self, measured=self.measured[part])
+
+
+@dataclass(frozen=True, eq=False)
 class MatchProblem:
     """Everything a matcher may use, nothing else (no truth).
 
@@ -63,6 +121,11 @@ class MatchProblem:
         The sensor's declared first-order lag time constant, seconds (a gravimeter's
         datasheet number; 0 = no lag). The recursive filters undo it before their update
         (:func:`geofix.measurement.lag_compensated`); ``measured`` stays as recorded.
+    fields : tuple of MatchField
+        The other fields measured at the same samples, each with its own map, readings
+        and noise (``()``: the one field above). The recursive filters PMF, PF and MPF
+        weigh them all (the product of the fields' likelihoods); the batch matchers and
+        SITAN use the primary field above only.
     """
 
     grid: Grid
@@ -79,11 +142,18 @@ class MatchProblem:
     dvl_velocity: np.ndarray | None = None
     ins_model: InsErrorModel | None = None
     lag_s: float = 0.0
+    fields: tuple[MatchField, ...] = ()
 
     def __post_init__(self) -> None:
         lag = float(self.lag_s)
         if not (np.isfinite(lag) and lag >= 0):
             raise ConfigError(f"MatchProblem: lag_s must be finite and >= 0, got {self.lag_s}")
+        for extra in self.fields:
+            if np.shape(extra.measured)[0] != np.shape(self.indicated)[0]:
+                raise ConfigError(
+                    f"MatchProblem: a {extra.kind} field has {np.shape(extra.measured)[0]} "
+                    f"samples, the problem {np.shape(self.indicated)[0]}"
+                )
 
     @property
     def n(self) -> int:

@@ -2,6 +2,7 @@
 
 from geofix.sim.scenario import (
     DvlSpec,
+    FieldSpec,
     InsSpec,
     MapSpec,
     Scenario,
@@ -13,15 +14,17 @@ from geofix.sim.scenario import (
 )
 from geofix.sim.simulate import (
     check_track_on_map,
+    prepare_field_maps,
     prepare_map,
     simulate_trial,
     simulate_trials,
     start_position,
 )
-from geofix.sim.trial import Trial
+from geofix.sim.trial import Trial, TrialField
 
 __all__ = [
     "DvlSpec",
+    "FieldSpec",
     "InsSpec",
     "MapSpec",
     "Scenario",
@@ -29,8 +32,10 @@ __all__ = [
     "SensorSpec",
     "TrackSpec",
     "Trial",
+    "TrialField",
     "check_track_on_map",
     "load_scenario",
+    "prepare_field_maps",
     "prepare_map",
     "scenario_from_dict",
     "simulate_trial",

@@ -28,7 +28,18 @@ other tools can be run on the very same data:
   (:class:`~geofix.nav.errstate.InsErrorModel`, SI units) as JSON (``ins_model_json``)
   when the trials have one, so that the error-state filters (``mpf``,
   ``pmf:model=errstate``) run on the file's trials. Units are on every variable (metres,
-  radians clockwise from north, seconds, map units).
+  radians clockwise from north, seconds, map units);
+- with a ``sensors:`` list, every field after the first as ``field<i>_*`` (``i`` its
+  index in the list, from 1) and the global attribute ``geofix_fields`` (their number):
+  its map ``field<i>_z (field<i>_y, field<i>_x)`` on its own coordinates, the geometry,
+  kind, units, name, sensor type and lag in that variable's attributes (``grid_x0``,
+  ``grid_y0``, ``grid_dx``, ``grid_dy``, ``grid_kind``, ``grid_units``, ``grid_name``,
+  ``grid_meta_json``, ``sensor``, ``lag_s``); ``field<i>_measured (trial, sample,
+  field<i>_beam)``, ``field<i>_offset_across``, ``field<i>_offset_along (field<i>_beam)``,
+  ``field<i>_noise_std (trial)``, ``field<i>_beam_noise_std (trial, field<i>_beam)`` and,
+  with a lag, ``field<i>_unlagged_measured``; with a ``seabed`` block in its entry, the
+  prior maps ``field<i>_prior_z (trial, field<i>_prior_y, field<i>_prior_x)`` (geometry
+  in its attributes) and ``field<i>_prior_shift_x``, ``field<i>_prior_shift_y (trial)``.
 """
 
 from __future__ import annotations
@@ -48,7 +59,7 @@ from geofix.memory import cells_bytes, check_allocation
 from geofix.nav.errstate import InsErrorModel
 from geofix.sim.scenario import with_overrides
 from geofix.sim.seabed import prior_shape
-from geofix.sim.trial import Trial
+from geofix.sim.trial import Trial, TrialField
 
 # One dataset variable as xarray takes it: ``(dims, values, attributes)``.
 _Variable = tuple[str | tuple[str, ...], ArrayLike, dict[str, Any]]
@@ -90,7 +101,7 @@ def export_trials(scenario, path: str | Path, trials: int | None = None, seed=No
         map (MapError), prior maps beyond the memory budget (MemoryBudgetError), or the
         file cannot be written.
     """
-    from geofix.sim.simulate import prepare_map, simulate_trial
+    from geofix.sim.simulate import prepare_field_maps, prepare_map, simulate_trial
 
     path = Path(path)
     if path.is_dir():
@@ -101,7 +112,7 @@ def export_trials(scenario, path: str | Path, trials: int | None = None, seed=No
         shape = prior_shape(grid.shape, scenario.seabed.cell_factor)
         _check_priors_size(scenario.trials, shape)
     runs = [simulate_trial(scenario, grid, i) for i in range(scenario.trials)]
-    dataset = trials_dataset(grid, runs, _scenario_attrs(scenario))
+    dataset = trials_dataset(grid, runs, _scenario_attrs(scenario), prepare_field_maps(scenario))
     return write_atomic(path, dataset.to_netcdf)  # whole or absent
 
 
@@ -116,7 +127,7 @@ def _scenario_attrs(scenario) -> dict:
     }
 
 
-def trials_dataset(grid: Grid, trials: list[Trial], attrs: dict | None = None):
+def trials_dataset(grid: Grid, trials: list[Trial], attrs: dict | None = None, field_maps=None):
     """The :mod:`xarray` dataset of a map and trials of equal length and beams.
 
     Parameters
@@ -124,9 +135,13 @@ def trials_dataset(grid: Grid, trials: list[Trial], attrs: dict | None = None):
     grid : Grid
         The map the trials were drawn on.
     trials : list of Trial
-        At least one trial; all with the same samples, beams, offsets and legs.
+        At least one trial; all with the same samples, beams, offsets and legs (and the
+        same further fields).
     attrs : dict, optional
         Extra global attributes (e.g. the scenario YAML).
+    field_maps : sequence of Grid, optional
+        The maps the further fields were drawn on (default: the first trial's field
+        maps, which are those maps unless an entry has a ``seabed`` block).
 
     Returns
     -------
@@ -153,7 +168,87 @@ def trials_dataset(grid: Grid, trials: list[Trial], attrs: dict | None = None):
         data.update(prior_data)
         coords.update(prior_coords)
         global_attrs.update(prior_attrs)
+    if first.fields:
+        maps = field_maps if field_maps is not None else [f.grid for f in first.fields]
+        for i, field_map in enumerate(maps, start=1):
+            field_data, field_coords = _field_vars(trials, i, field_map)
+            data.update(field_data)
+            coords.update(field_coords)
+        global_attrs["geofix_fields"] = len(first.fields)
     return xr.Dataset(data, coords=coords, attrs=global_attrs)
+
+
+def _grid_attrs(grid: Grid) -> dict:
+    return {
+        "grid_x0": float(grid.x0),
+        "grid_y0": float(grid.y0),
+        "grid_dx": float(grid.dx),
+        "grid_dy": float(grid.dy),
+        "grid_kind": grid.kind,
+        "grid_units": grid.units,
+        "grid_name": grid.name,
+        "grid_meta_json": json.dumps(grid.meta, default=str),
+    }
+
+
+def _field_vars(trials: list[Trial], i: int, field_map: Grid) -> tuple[dict, dict]:
+    """``(variables, coordinates)`` of further field ``i`` (1-based) of every trial."""
+    name, beam = f"field{i}", f"field{i}_beam"
+    fields = [t.fields[i - 1] for t in trials]
+    first = fields[0]
+    units = field_map.units
+    data: dict[str, _Variable] = {
+        f"{name}_z": (
+            (f"{name}_y", f"{name}_x"),
+            np.asarray(field_map.values),
+            {
+                "units": units,
+                "long_name": f"map of field {i}",
+                "sensor": first.sensor,
+                "lag_s": float(first.lag_s),
+                **_grid_attrs(field_map),
+            },
+        ),
+        f"{name}_measured": (
+            ("trial", "sample", beam),
+            np.stack([f.measured for f in fields]),
+            _attrs(f"field {i} sensor reading", units),
+        ),
+        f"{name}_offset_across": (beam, first.offsets[:, 0], _attrs("beam offset, starboard", "m")),
+        f"{name}_offset_along": (beam, first.offsets[:, 1], _attrs("beam offset, forward", "m")),
+        f"{name}_noise_std": (
+            "trial",
+            [float(f.noise_std) for f in fields],
+            _attrs("sensor noise 1-sigma", units),
+        ),
+        f"{name}_beam_noise_std": (
+            ("trial", beam),
+            np.stack([np.asarray(f.beam_noise_std, float) for f in fields]),
+            _attrs("sensor noise 1-sigma of every beam", units),
+        ),
+    }
+    coords = {
+        f"{name}_x": (f"{name}_x", field_map.x, {"units": "m"}),
+        f"{name}_y": (f"{name}_y", field_map.y, {"units": "m"}),
+    }
+    if first.unlagged_measured is not None:
+        stacked = np.stack([f.unlagged_measured for f in fields])
+        what = _attrs(f"field {i} reading before the lag", units)
+        data[f"{name}_unlagged_measured"] = (("trial", "sample", beam), stacked, what)
+    if first.sensed is not None:
+        prior = first.grid
+        stacked = np.stack([np.asarray(f.grid.values) for f in fields])
+        what = {"units": units, "long_name": f"prior map of field {i}", **_grid_attrs(prior)}
+        data[f"{name}_prior_z"] = (("trial", f"{name}_prior_y", f"{name}_prior_x"), stacked, what)
+        shifts = np.stack(
+            [np.zeros(2) if f.prior_shift_m is None else f.prior_shift_m for f in fields]
+        )
+        for c, axis in enumerate(("x", "y")):
+            what = _attrs(f"field {i} prior map misregistration, {axis}", "m")
+            data[f"{name}_prior_shift_{axis}"] = ("trial", shifts[:, c], what)
+        coords[f"{name}_prior_x"] = (f"{name}_prior_x", prior.x, {"units": "m"})
+        coords[f"{name}_prior_y"] = (f"{name}_prior_y", prior.y, {"units": "m"})
+    return data, coords
 
 
 def _attrs(long_name: str, units: str) -> dict:
@@ -307,6 +402,9 @@ def _check_alike(trials: list[Trial]) -> None:
             raise GeofixError("trials to export must have the same samples, beams and legs")
         if t.ins_model != first.ins_model:
             raise GeofixError("trials to export must share one INS error model")
+        shapes = [f.measured.shape for f in t.fields]
+        if shapes != [f.measured.shape for f in first.fields]:
+            raise GeofixError("trials to export must have the same further fields")
 
 
 def load_exported(path: str | Path) -> tuple[Grid, list[Trial]]:
@@ -347,6 +445,9 @@ def load_exported(path: str | Path) -> tuple[Grid, list[Trial]]:
         if "prior_z" in ds:
             prior = _prior_from(ds, k, grid) if shared is None else shared
             trial = replace(trial, prior_map=prior, prior_shift_m=_shift_from(ds, k))
+        count = int(ds.attrs.get("geofix_fields", 0))
+        if count:
+            trial = replace(trial, fields=tuple(_field_from(ds, k, i) for i in range(1, count + 1)))
         trials.append(trial)
     return grid, trials
 
@@ -380,6 +481,48 @@ def _prior_from(ds, k: int, grid: Grid) -> Grid:
         units=grid.units,
         name=str(a["prior_grid_name"]),
         meta=json.loads(a["prior_grid_meta_json"]),
+    )
+
+
+def _attr_grid(ds, var: str, values) -> Grid:
+    a = ds[var].attrs
+    return Grid(
+        values,
+        x0=float(a["grid_x0"]),
+        y0=float(a["grid_y0"]),
+        dx=float(a["grid_dx"]),
+        dy=float(a["grid_dy"]),
+        kind=str(a["grid_kind"]),
+        units=str(a["grid_units"]),
+        name=str(a["grid_name"]),
+        meta=json.loads(a["grid_meta_json"]),
+    )
+
+
+def _field_from(ds, k: int, i: int) -> TrialField:
+    """Trial ``k``'s further field ``i`` (1-based) as exported."""
+    name = f"field{i}"
+    field_map = _attr_grid(ds, f"{name}_z", ds[f"{name}_z"].values)
+    prior, sensed, shift = field_map, None, None
+    if f"{name}_prior_z" in ds:
+        prior = _attr_grid(ds, f"{name}_prior_z", ds[f"{name}_prior_z"].values[k])
+        sensed = field_map
+        shift = np.array([float(ds[f"{name}_prior_shift_{a}"].values[k]) for a in ("x", "y")])
+    unlagged = f"{name}_unlagged_measured"
+    return TrialField(
+        kind=field_map.kind,
+        sensor=str(ds[f"{name}_z"].attrs["sensor"]),
+        measured=ds[f"{name}_measured"].values[k],
+        offsets=np.column_stack(
+            [ds[f"{name}_offset_across"].values, ds[f"{name}_offset_along"].values]
+        ),
+        noise_std=float(ds[f"{name}_noise_std"].values[k]),
+        beam_noise_std=np.asarray(ds[f"{name}_beam_noise_std"].values[k], dtype=float),
+        grid=prior,
+        lag_s=float(ds[f"{name}_z"].attrs["lag_s"]),
+        unlagged_measured=ds[unlagged].values[k] if unlagged in ds else None,
+        sensed=sensed,
+        prior_shift_m=shift,
     )
 
 

@@ -23,6 +23,21 @@ block (:class:`geofix.sim.seabed.SeabedSpec`, every key described in
 :mod:`geofix.sim.seabed`) makes the map the sensor reads (the scenario's ``map``, the
 seabed) differ from the prior map the methods get; a scenario without it is dumped (and
 hashed) as before the block existed.
+
+A vehicle with several field sensors lists them under ``sensors:`` instead, one entry
+per field, each with its own map, sensor and optional ``seabed`` block
+(:class:`FieldSpec`)::
+
+    sensors:
+      - {map: {path: "builtin:mb_1km"}, sensor: {type: multibeam, beams: 11, ...}}
+      - {map: {path: "builtin:grav_1km"}, sensor: {type: gravimeter, noise_std: 1.0}}
+
+The first entry is the primary field: ``map``, ``sensor`` and ``seabed`` of the scenario
+are its blocks (given again at the top level they must be equal to the entry's; a
+top-level ``seabed`` applies to the first entry when it has none). The
+recursive filters weigh every field (:mod:`geofix.filters.loop`); the batch matchers and
+SITAN use the primary field only. A scenario without ``sensors:`` is dumped (and hashed)
+as before the key existed.
 """
 
 from __future__ import annotations
@@ -50,6 +65,7 @@ from geofix.sim.seabed import HolesSpec, SeabedSpec
 
 __all__ = [
     "DvlSpec",
+    "FieldSpec",
     "HolesSpec",
     "InsSpec",
     "MapSpec",
@@ -76,6 +92,25 @@ class MapSpec(Strict):
     kind: Literal["depth", "gravity", "magnetic"] | None = None
     region: tuple[float, float, float, float] | None = None
     resample_m: float | None = Field(default=None, gt=0)
+
+
+class FieldSpec(Strict):
+    """One field sensor of a ``sensors:`` list: its map, its sensor, its optional seabed.
+
+    Parameters
+    ----------
+    map : MapSpec
+        The map of this field (its ``kind`` must be the one the sensor reads).
+    sensor : SensorSpec
+        The sensor of this field and its noise (map units).
+    seabed : SeabedSpec, optional
+        How this field's prior map differs from the field the sensor reads
+        (:mod:`geofix.sim.seabed`; None: the map is the field).
+    """
+
+    map: MapSpec
+    sensor: SensorSpec
+    seabed: SeabedSpec | None = None
 
 
 class TrackSpec(Strict):
@@ -110,11 +145,16 @@ class Scenario(Strict):
         The scenario's name (non-blank), used in outputs.
     map : MapSpec
         The map the sensor reads: a file or ``builtin:NAME``, its variable, field kind,
-        geographic region cut and resampling to metres.
+        geographic region cut and resampling to metres (with ``sensors``: the first
+        entry's, filled in from it).
     track : TrackSpec
         The true track: start, heading, speed, sampling interval, samples, legs, turns.
     sensor : SensorSpec
-        The field sensor (single-beam, multibeam or gravimeter) and its noise.
+        The field sensor (single-beam, multibeam, gravimeter or magnetometer) and its
+        noise (with ``sensors``: the first entry's, filled in from it).
+    sensors : list of FieldSpec, optional
+        Several field sensors, one entry per field kind, the first the primary field
+        (None: the one field of ``map`` and ``sensor``).
     ins : InsSpec
         The INS datasheet: initial error, velocity and heading errors, gyro and
         accelerometer biases and noises.
@@ -126,15 +166,17 @@ class Scenario(Strict):
         Seed of every trial's generator (trial ``i`` draws from ``[seed, i]``).
     seabed : SeabedSpec, optional
         How the prior map the methods get differs from the field the sensor reads
-        (:mod:`geofix.sim.seabed`; None: the map is the seabed).
+        (:mod:`geofix.sim.seabed`; None: the map is the seabed); with ``sensors``, the
+        first entry's.
     base_dir : str
         Folder a relative ``map.path`` is read from (not part of the file).
     """
 
     name: str
-    map: MapSpec
+    map: MapSpec | None = None
     track: TrackSpec
-    sensor: SensorSpec
+    sensor: SensorSpec | None = None
+    sensors: list[FieldSpec] | None = None
     ins: InsSpec = InsSpec()
     dvl: DvlSpec | None = None
     trials: int = Field(default=10, ge=1, le=MAX_TRIALS)
@@ -150,6 +192,54 @@ class Scenario(Strict):
         return v
 
     @model_validator(mode="after")
+    def _sensors_fill_the_primary_field(self) -> Scenario:
+        if self.sensors is None:
+            missing = [k for k in ("map", "sensor") if getattr(self, k) is None]
+            if missing:
+                raise ValueError(f"{' and '.join(missing)} required (or a sensors: list of fields)")
+            return self
+        if not self.sensors:
+            raise ValueError("sensors: the list is empty; give at least one {map, sensor}")
+        first = self.sensors[0]
+        for key in ("map", "sensor", "seabed"):
+            given, entry = getattr(self, key), getattr(first, key)
+            if key == "seabed" and entry is None:
+                continue  # a top-level seabed block is the primary field's
+            if given is not None and given != entry:
+                raise ValueError(
+                    f"{key}: conflicts with sensors[0].{key} (with a sensors: list, give "
+                    f"{key} in its first entry only)"
+                )
+            object.__setattr__(self, key, entry)  # the primary field's blocks
+        kinds = [entry.sensor.kind for entry in self.sensors]
+        for i, kind in enumerate(kinds):
+            if kind in kinds[:i]:
+                raise ValueError(
+                    f"sensors[{i}]: a second {kind} sensor (sensors[{kinds.index(kind)}] "
+                    f"is one); one entry per field kind"
+                )
+        for i, entry in enumerate(self.sensors):
+            if entry.map.kind is not None and entry.map.kind != entry.sensor.kind:
+                raise ValueError(
+                    f"sensors[{i}]: sensor.type {entry.sensor.type} needs a "
+                    f"{entry.sensor.kind} map, but map.kind is {entry.map.kind}"
+                )
+        return self
+
+    @property
+    def fields(self) -> list[FieldSpec]:
+        """Every field of the scenario, the primary first (one without ``sensors``)."""
+        if self.sensors is not None:
+            first = self.sensors[0].model_copy(update={"seabed": self.seabed})
+            return [first, *self.sensors[1:]]
+        assert self.map is not None and self.sensor is not None  # checked on validation
+        return [FieldSpec(map=self.map, sensor=self.sensor, seabed=self.seabed)]
+
+    def field_map_path(self, index: int) -> str:
+        """The map path of field ``index`` (0: the primary) resolved as :meth:`map_path`."""
+        return self._resolved(self.fields[index].map.path)
+
+    @model_validator(mode="after")
     def _dvl_mode_needs_dvl(self) -> Scenario:
         if self.ins.mode == "dvl" and self.dvl is None:
             raise ValueError("ins.mode: dvl needs a dvl block (noise_std_m_s, bias_m_s, ...)")
@@ -161,13 +251,23 @@ class Scenario(Strict):
         data = handler(self)
         if self.seabed is None:
             data.pop("seabed", None)
+        if self.sensors is None:
+            data.pop("sensors", None)
+        else:
+            for entry in data["sensors"]:
+                if entry.get("seabed") is None:
+                    entry.pop("seabed", None)
         return data
 
     def map_path(self) -> str:
         """The map path as given, resolved against the scenario's folder."""
-        if self.map.path.startswith("builtin:"):
-            return self.map.path
-        path = Path(self.map.path)
+        assert self.map is not None  # checked on validation
+        return self._resolved(self.map.path)
+
+    def _resolved(self, given: str) -> str:
+        if given.startswith("builtin:"):
+            return given
+        path = Path(given)
         return str(path if path.is_absolute() else Path(self.base_dir) / path)
 
 

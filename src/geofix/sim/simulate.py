@@ -6,6 +6,8 @@ into independent streams for the track (start jitter, turns), the INS, the DVL, 
 sensor and the seabed (``spawn(5)``: children are keyed by their index, so the first four
 are those of the earlier ``spawn(4)``), so switching the DVL on, changing the sensor or
 adding a ``seabed:`` block leaves the track and the INS errors of a trial unchanged.
+Each further field of a ``sensors:`` list takes the next two streams (its sensor, its
+seabed), so adding a field changes none of the primary field's numbers.
 
 With a ``seabed:`` block (:mod:`geofix.sim.seabed`) the prepared map is the seabed: the
 sensor reads it (plus the block's relief), the readings carry its offset, tide and drift,
@@ -14,6 +16,8 @@ and the trial carries the prior map its methods get (``Trial.prior_map``).
 
 from __future__ import annotations
 
+import functools
+import os
 from collections.abc import Iterable, Iterator
 from typing import Any
 
@@ -29,10 +33,10 @@ from geofix.nav.trajectory import TrueTrajectory, true_trajectory
 from geofix.problem import footprint_xy
 from geofix.sensors.echosounder import beam_noise_std, sensor_offsets
 from geofix.sensors.spec import SensorSpec
-from geofix.sim.scenario import Scenario
+from geofix.sim.scenario import FieldSpec, MapSpec, Scenario
 from geofix.sim.seabed import SeabedDraw, draw_seabed
 from geofix.sim.sensing import measure_with_unlagged
-from geofix.sim.trial import Trial
+from geofix.sim.trial import Trial, TrialField
 
 
 def prepare_map(scenario: Scenario, float32_within: float | None = None) -> Grid:
@@ -72,6 +76,53 @@ def prepare_map(scenario: Scenario, float32_within: float | None = None) -> Grid
         region=spec.region,
         resample_m=spec.resample_m,
         **precision,
+    )
+
+
+def prepare_field_maps(scenario: Scenario) -> tuple[Grid, ...]:
+    """The prepared maps of the scenario's fields after the first (``sensors:``).
+
+    Each entry's ``map`` block loaded, cut, projected and resampled as :func:`prepare_map`
+    does the primary's (float64), read once per process and kept.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The mission family.
+
+    Returns
+    -------
+    tuple of Grid
+        One map per further field, in the ``sensors:`` order (``()`` for one field).
+    """
+    fields = scenario.fields
+    return tuple(
+        _prepared_map(scenario.field_map_path(i), fields[i].map, _stamp(scenario, i))
+        for i in range(1, len(fields))
+    )
+
+
+def _stamp(scenario: Scenario, index: int) -> float:
+    """Modification time of a field's map file (0 for a bundled one): part of the cache key."""
+    path = scenario.field_map_path(index)
+    if path.startswith("builtin:"):
+        return 0.0
+    try:
+        return os.stat(path).st_mtime
+    except OSError:
+        return 0.0  # load_grid says what is wrong with it
+
+
+@functools.lru_cache(maxsize=8)
+def _prepared_map(path: str, spec: MapSpec, stamp: float) -> Grid:
+    from geofix.maps.io import load_grid
+
+    return load_grid(
+        path,
+        variable=spec.variable,
+        kind=spec.kind,
+        region=spec.region,
+        resample_m=spec.resample_m,
     )
 
 
@@ -153,7 +204,7 @@ def check_trial_size(scenario: Scenario) -> None:
         estimate and the budget.
     """
     n = float(scenario.track.samples) * float(scenario.track.legs)
-    beams = scenario.sensor.beams if scenario.sensor.type == "multibeam" else 1
+    beams = sum(f.sensor.beams if f.sensor.type == "multibeam" else 1 for f in scenario.fields)
     check_allocation(
         cells_bytes(n, beams, copies=_TRIAL_COPIES) + cells_bytes(n, copies=40),
         f"trial of {n:.0f} samples x {beams} beams (track.samples, track.legs, sensor.beams)",
@@ -266,8 +317,9 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
     """
     check_trial_size(scenario)
     check_sensor_fits_map(scenario, grid)
-    streams = np.random.default_rng([scenario.seed, index]).spawn(5)
-    track_rng, ins_rng, dvl_rng, sensor_rng, seabed_rng = streams
+    extra_maps = prepare_field_maps(scenario)
+    streams = np.random.default_rng([scenario.seed, index]).spawn(5 + 2 * len(extra_maps))
+    track_rng, ins_rng, dvl_rng, sensor_rng, seabed_rng = streams[:5]
     true = _true_track(scenario, grid, track_rng)
     offsets = sensor_offsets(scenario.sensor)
     x, y = footprint_xy(true.positions, true.heading, offsets)
@@ -313,6 +365,71 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
         **_aiding(scenario, true, unlagged, dvl_rng),
         ins_model=InsErrorModel.from_specs(scenario.ins, scenario.dvl),
         **_prior_fields(draw),
+        fields=tuple(
+            _simulate_field(
+                spec, f"sensors[{i}]", field_grid, true, *streams[3 + 2 * i : 5 + 2 * i]
+            )
+            for i, (spec, field_grid) in enumerate(
+                zip(scenario.fields[1:], extra_maps, strict=True), start=1
+            )
+        ),
+    )
+
+
+def _simulate_field(
+    spec: FieldSpec, which: str, grid: Grid, true: TrueTrajectory, sensor_rng, seabed_rng
+) -> TrialField:
+    """One further field's readings along the true track (its own noise, seabed, lag).
+
+    Raises
+    ------
+    ConfigError
+        The sensor cannot read the map's kind, or the map lies wholly off the track.
+    TrackOffMapError
+        A footprint of the true track is off this map (or its prior map) or on no-data.
+    """
+    _check_kind(spec.sensor, grid, f"{which}.sensor.type", f"{which}.map.kind")
+    offsets = sensor_offsets(spec.sensor)
+    x, y = footprint_xy(true.positions, true.heading, offsets)
+    footprints = np.stack([x, y], axis=-1)
+    west, east, south, north = grid.extent
+    if x.max() < west or x.min() > east or y.max() < south or y.min() > north:
+        raise ConfigError(
+            f"{which}: map {grid.name!r} (x {west:.0f}..{east:.0f}, y {south:.0f}..{north:.0f}"
+            f" m) does not overlap the true track (x {x.min():.0f}..{x.max():.0f}, "
+            f"y {y.min():.0f}..{y.max():.0f} m)"
+        )
+    check_track_on_map(grid, footprints, f"true track on the {which} map")
+    draw = _draw(spec.seabed, grid, seabed_rng, footprints, true.times)
+    measured, unlagged = measure_with_unlagged(
+        grid if draw is None else draw.sensed,
+        true.positions,
+        true.heading,
+        offsets,
+        spec.sensor,
+        sensor_rng,
+        true.times,
+    )
+    if draw is not None:
+        measured = measured + draw.reading_offsets[:, None]
+        unlagged = unlagged + draw.reading_offsets[:, None]
+    if not np.all(np.isfinite(measured)):
+        k = int(np.argmax(~np.isfinite(measured).all(axis=1)))
+        raise TrackOffMapError(f"true track: {which} measurement not finite at sample {k}")
+    sensor = spec.sensor
+    lagged = sensor.lag_s > 0
+    return TrialField(
+        kind=sensor.kind,
+        sensor=sensor.type,
+        measured=measured,
+        offsets=offsets,
+        noise_std=float(np.hypot(sensor.noise_std, sensor.map_error_std)),
+        beam_noise_std=np.hypot(beam_noise_std(offsets, sensor), sensor.map_error_std),
+        grid=grid if draw is None else draw.prior,
+        lag_s=float(sensor.lag_s),
+        unlagged_measured=unlagged if lagged else None,
+        sensed=None if draw is None else draw.sensed,
+        prior_shift_m=None if draw is None else draw.shift_m,
     )
 
 
@@ -326,13 +443,18 @@ def _draw_seabed(
     TrackOffMapError
         The prior map does not cover the true track's footprints.
     """
-    if scenario.seabed is None:
+    return _draw(scenario.seabed, grid, rng, footprints, times)
+
+
+def _draw(seabed, grid: Grid, rng, footprints, times) -> SeabedDraw | None:
+    """A draw of one ``seabed`` block (None without one); see :func:`_draw_seabed`."""
+    if seabed is None:
         return None
-    draw = draw_seabed(grid, scenario.seabed, rng, footprints, times)
+    draw = draw_seabed(grid, seabed, rng, footprints, times)
     try:
         check_track_on_map(draw.prior, footprints, "true track on the prior map")
     except TrackOffMapError as exc:
-        k = scenario.seabed.cell_factor
+        k = seabed.cell_factor
         hint = "" if k == 1 else f" (seabed.cell_factor {k} cuts the seabed's ragged edge)"
         raise TrackOffMapError(f"{exc}{hint}") from None
     return draw

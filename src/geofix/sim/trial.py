@@ -9,7 +9,65 @@ import numpy as np
 
 from geofix.maps.grid import Grid
 from geofix.nav.errstate import InsErrorModel
-from geofix.problem import MatchProblem, check_beam_noise_std
+from geofix.problem import MatchField, MatchProblem, check_beam_noise_std
+
+
+@dataclass(frozen=True, eq=False)
+class TrialField:
+    """One more field of a mission with several sensors (a scenario's ``sensors:`` list).
+
+    Parameters
+    ----------
+    kind : str
+        The field's kind (``depth``, ``gravity`` or ``magnetic``).
+    sensor : str
+        The sensor type.
+    measured : numpy.ndarray
+        ``(n, b)`` readings along the true track, map units, NaN = missing.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets ``(across, along)``, metres.
+    noise_std : float
+        ``hypot(sensor.noise_std, sensor.map_error_std)``, map units (nadir for a
+        multibeam), as the trial's own ``noise_std``.
+    beam_noise_std : numpy.ndarray
+        ``(b,)`` every beam's noise 1-sigma on the same footing, map units.
+    grid : Grid
+        The map the methods get for this field: the prepared map, or the trial's prior
+        map of this field with a ``seabed`` block in its entry.
+    lag_s : float
+        The sensor's declared lag time constant, seconds (0: none).
+    unlagged_measured : numpy.ndarray or None
+        ``(n, b)`` the readings before the lag (truth: never handed to a method).
+    sensed : Grid or None
+        The field the sensor read when it differs from ``grid`` (a ``seabed`` block; truth:
+        never handed to a method).
+    prior_shift_m : numpy.ndarray or None
+        ``(2,)`` the prior map's drawn misregistration, metres (truth); None without one.
+    """
+
+    kind: str
+    sensor: str
+    measured: np.ndarray
+    offsets: np.ndarray
+    noise_std: float
+    beam_noise_std: np.ndarray
+    grid: Grid
+    lag_s: float = 0.0
+    unlagged_measured: np.ndarray | None = None
+    sensed: Grid | None = None
+    prior_shift_m: np.ndarray | None = None
+
+    def match_field(self, part: slice = slice(None)) -> MatchField:
+        """What a method is handed of this field over samples ``part``."""
+        return MatchField(
+            grid=self.grid,
+            measured=self.measured[part],
+            offsets=self.offsets,
+            noise_std=float(self.noise_std),
+            sensor=self.sensor,
+            beam_noise_std=self.beam_noise_std,
+            lag_s=float(self.lag_s),
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +128,9 @@ class Trial:
     prior_shift_m : numpy.ndarray or None
         ``(2,)`` the prior map's drawn misregistration ``(east, north)``, metres (truth:
         never handed to a method); None without a prior map.
+    fields : tuple of TrialField
+        The other fields of a scenario's ``sensors:`` list, in its order after the first
+        (``()``: one field). Handed to every problem (:attr:`MatchProblem.fields`).
     """
 
     truth: np.ndarray
@@ -93,6 +154,7 @@ class Trial:
     lag_s: float = 0.0
     prior_map: Grid | None = None
     prior_shift_m: np.ndarray | None = None
+    fields: tuple[TrialField, ...] = ()
 
     def __post_init__(self) -> None:
         if self.beam_noise_std is not None:
@@ -144,4 +206,5 @@ class Trial:
             dvl_velocity=dvl,
             ins_model=self.ins_model,
             lag_s=float(self.lag_s),
+            fields=tuple(f.match_field(part) for f in self.fields),
         )
