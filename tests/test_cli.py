@@ -55,6 +55,25 @@ def test_run_json_contract(scenario_file, tmp_path):
     assert (out / "results.sqlite").exists()
 
 
+def test_run_valid_bound_lands_in_the_summary_and_the_table(tmp_path, small_mission):
+    data = small_mission("cli-valid", trials=2, track={"samples": 8})
+    path = tmp_path / "scen.yaml"
+    path.write_text(yaml.safe_dump(data.model_dump(mode="json", exclude={"base_dir"})))
+    out = tmp_path / "out"
+    args = ["run", str(path), "-m", "tercom", "--jobs", "1", "--out", str(out), "--valid-bound"]
+    result = runner.invoke(app, args, env={"COLUMNS": "200"})
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    end, track = summary["valid_bound_m"], summary["valid_bound_track_m"]
+    assert end > 0 and track > 0
+    assert summary["crlb_m"] > 0 and set(summary["methods"]["tercom"]) >= METHOD_KEYS
+    text = " ".join(result.output.split())
+    assert f"valid bound: {end:.1f} m at the end, {track:.1f} m along the track" in text
+    plain = runner.invoke(app, [*args[:-1], "--json"])  # resumed, the bound not asked for
+    assert plain.exit_code == 0, plain.output
+    assert "valid_bound_m" not in json.loads(plain.stdout)
+
+
 def test_json_stdout_is_only_json_in_a_real_process(scenario_file, tmp_path):
     cmd = [sys.executable, "-m", "geofix", "run", str(scenario_file), "--method", "tercom"]
     cmd += ["--trials", "2", "--jobs", "1", "--out", str(tmp_path / "o"), "--json"]

@@ -217,6 +217,13 @@ def run(
         str | None, typer.Option(help="Dask scheduler address to run the campaign on.")
     ] = None,
     figure: Annotated[bool, typer.Option(help="Also write campaign.png to the output.")] = False,
+    valid_bound: Annotated[
+        bool,
+        typer.Option(
+            "--valid-bound",
+            help="Also compute the valid bound max(CRLB, ZZB, genie) of every trial (slow).",
+        ),
+    ] = False,
 ) -> None:
     """Run a Monte Carlo campaign of one or more methods on a scenario."""
 
@@ -237,6 +244,7 @@ def run(
                 out_dir=out,
                 scheduler=scheduler,
                 progress=bar,
+                valid_bound=valid_bound,
             )
         if json_output:
             sys.stdout.write(json.dumps(result.summary.to_json()) + "\n")

@@ -104,7 +104,9 @@ def summary_table(summary: CampaignSummary, width: int | None = None) -> Table:
         error and mean along-track error (metres), success rates within 100 m, 1 cell and
         3 cells (%), mean time per ``match`` call (milliseconds). The title carries the
         Cramér–Rao bound on the end-point RMS error (``crlb_m``), which the ``rms``
-        column is to be read against, and the bound along the track (``crlb_track_m``).
+        column is to be read against, and the bound along the track (``crlb_track_m``);
+        then the valid bound at the end and along the track (``valid_bound_m``,
+        ``valid_bound_track_m``) when the campaign computed it.
 
     Examples
     --------
@@ -134,16 +136,26 @@ def summary_table(summary: CampaignSummary, width: int | None = None) -> Table:
 
 
 def _bounds(summary: CampaignSummary) -> str:
-    """``"; CRLB on the RMS error: 12.3 m at the end, 9.8 m along the track"`` (Cramér–Rao)."""
+    """The bounds of the title: the Cramér–Rao bound, then the valid bound when computed.
+
+    ``"; CRLB on the RMS error: 12.3 m at the end, 9.8 m along the track; valid bound:
+    15.0 m at the end, 11.2 m along the track"``.
+    """
+    crlb = _at_end_and_along(summary.crlb_m, summary.crlb_track_m)
+    valid = _at_end_and_along(summary.valid_bound_m, summary.valid_bound_track_m)
+    return (f"; CRLB on the RMS error: {crlb}" if crlb else "") + (
+        f"; valid bound: {valid}" if valid else ""
+    )
+
+
+def _at_end_and_along(end: float | None, track: float | None) -> str:
+    """``"12.3 m at the end, 9.8 m along the track"``, leaving out a missing value."""
     parts = [
         f"{value:.1f} m {where}"
-        for value, where in (
-            (summary.crlb_m, "at the end"),
-            (summary.crlb_track_m, "along the track"),
-        )
+        for value, where in ((end, "at the end"), (track, "along the track"))
         if value is not None and math.isfinite(value)
     ]
-    return f"; CRLB on the RMS error: {', '.join(parts)}" if parts else ""
+    return ", ".join(parts)
 
 
 #: Columns left out first when the table does not fit the terminal (by header).
