@@ -295,3 +295,26 @@ def test_summary_table_shows_the_crlb_beside_the_rms_error():
     assert "rms" in text and "61.2" in text
     no_bound = CampaignSummary("s", 4, methods={"pmf": stats})
     assert "CRLB" not in str(summary_table(no_bound).title)
+
+
+def test_replay_table_carries_the_nees_of_converged_beside_the_end_error(monkeypatch):
+    import io
+
+    from rich.console import Console
+
+    from geofix import cli
+
+    monkeypatch.setattr(cli, "_out", Console(file=io.StringIO(), width=120))
+    row = {"end_error_m": 7.64, "mean_error_m": 9.6, "max_error_m": 33.6, "reinits": 0}
+    summary = {
+        "pings": 50,
+        "methods": {
+            "pmf": {**row, "converged_at_s": 137.3, "converged_nees": 1.305},
+            "pf": {**row, "converged_at_s": None, "converged_nees": None},
+        },
+    }
+    cli._print_replay(summary)
+    text = " ".join(cli._out.file.getvalue().split())
+    assert "┃ method ┃ end error m ┃ converged NEES ┃ mean error m ┃" in text
+    assert "│ pmf │ 7.6 │ 1.3 │ 9.6 │ 33.6 │ 137.3 │ 0 │" in text
+    assert "│ pf │ 7.6 │ - │ 9.6 │ 33.6 │ - │ 0 │" in text

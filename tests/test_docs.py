@@ -179,6 +179,7 @@ def test_navigator_guide_prints_what_the_page_says(tmp_path, monkeypatch, capsys
 
 
 def test_replay_guide_table_is_what_the_command_prints(tmp_path):
+    from geofix.cli import REPLAY_COLUMNS
     from geofix.logs.gridmap import grid_log
     from geofix.replay import replay_log
 
@@ -186,8 +187,9 @@ def test_replay_guide_table_is_what_the_command_prints(tmp_path):
     result, _ = replay_log("builtin:ex1811", str(path), ["pmf", "pf"], None, 500.0, 1)
     text = " ".join((DOCS / "guide" / "replay.md").read_text().split())
     for name, row in result.summary["methods"].items():
-        cells = [row[k] for k in ("end_error_m", "mean_error_m", "max_error_m", "converged_at_s")]
+        cells = [row[key] for _, key in REPLAY_COLUMNS]
         assert " │ ".join([f"│ {name}", *(f"{v:.1f}" for v in cells)]) in text, name
+    assert " ┃ ".join(["┃ method", *(head for head, _ in REPLAY_COLUMNS)]) in text
     assert f'"converged_pings": {result.summary["methods"]["pmf"]["converged_pings"]}' in text
 
 

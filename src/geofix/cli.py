@@ -561,19 +561,27 @@ def _one_field(fields: list[str] | None) -> str | None:
     return fields[0]
 
 
+#: The number columns of the replay table: (header, key of the replay summary).
+REPLAY_COLUMNS = (
+    ("end error m", "end_error_m"),
+    ("converged NEES", "converged_nees"),
+    ("mean error m", "mean_error_m"),
+    ("max error m", "max_error_m"),
+    ("converged at s", "converged_at_s"),
+)
+
+
 def _print_replay(summary: dict) -> None:
+    """The replay's table: errors against the truth, the NEES of ``converged``, re-inits.
+
+    ``converged NEES`` is the mean ``e^T C^-1 e`` over the pings reported ``converged``
+    (:func:`geofix.replay.converged_nees`); ``-`` when none converged or without a truth.
+    """
     table = Table(title=f"replay: {summary['pings']} pings")
-    for col in (
-        "method",
-        "end error m",
-        "mean error m",
-        "max error m",
-        "converged at s",
-        "reinits",
-    ):
+    for col in ("method", *(head for head, _ in REPLAY_COLUMNS), "reinits"):
         table.add_column(col)
     for name, row in summary["methods"].items():
-        cells = [row[k] for k in ("end_error_m", "mean_error_m", "max_error_m", "converged_at_s")]
+        cells = [row[key] for _, key in REPLAY_COLUMNS]
         table.add_row(name, *("-" if v is None else f"{v:.1f}" for v in cells), str(row["reinits"]))
     _out.print(table)
 
