@@ -64,11 +64,11 @@ METHOD_DESCRIPTIONS: dict[str, str] = {
     "tercom-icp": "TERCOM coarse fix over the 6-sigma window, refined by ICP.",
     "abc-mhd": "Artificial bee colony search with mean-Hausdorff screening.",
     "ioap": "IOAP: ring searches for the track's start and end points, scored by MSD.",
-    "sitan": "SITAN: one extended Kalman filter on the locally linearised terrain.",
-    "sitan-bank": "Parallel SITAN: a bank of N x N Kalman filters, the best one selected.",
-    "pmf": "Point-mass filter: the Bayes recursion on a grid that follows the posterior.",
-    "pf": "Bootstrap particle filter over the horizontal position.",
-    "mpf": "Marginalised particle filter: particles on position, Kalman on INS errors.",
+    "sitan": "SITAN: one extended Kalman filter on the linearised terrain (primary field).",
+    "sitan-bank": "Parallel SITAN: N x N Kalman filters, the best one kept (primary field).",
+    "pmf": "Point-mass filter: Bayes on a grid that follows the posterior (every field).",
+    "pf": "Bootstrap particle filter over the horizontal position (every field).",
+    "mpf": "Marginalised particle filter: Kalman on INS errors (every field).",
     "ins": "The free INS: the indicated track, never corrected (the yardstick).",
 }
 
@@ -157,7 +157,7 @@ def method_summary(cls: type) -> str:
     --------
     >>> import geofix
     >>> method_summary(geofix.Pf)
-    'Bootstrap particle filter over the horizontal position.'
+    'Bootstrap particle filter over the horizontal position (every field).'
     """
     name = getattr(cls, "name", None)
     if name in METHOD_DESCRIPTIONS and _REGISTRY.get(name) is cls:

@@ -4,6 +4,10 @@ Batch matchers (TERCOM, ICCP, GA-SCA, ...) and recursive filters (SITAN, PMF, PF
 the same protocol: ``method.match(problem, rng) -> Fix``. A batch matcher is handed one
 matching window (one leg); a method whose class attribute ``recursive`` is True is handed
 the whole mission at once and returns its estimate at every sample.
+
+A problem may carry further fields measured at the same samples (:class:`MatchField`: a
+gravimeter beside the echosounder, say): the recursive filters PMF, PF and MPF weigh them
+all; the batch matchers and SITAN use the primary field only.
 """
 
 from __future__ import annotations

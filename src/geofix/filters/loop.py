@@ -17,6 +17,17 @@ takes the readings as they are with the offset's prior. After an accepted ping t
 and the share learn from its innovations and the offset from its residuals: always for a
 ping of fewer than three beams, for one of several only when the caller says the
 position is settled (the navigator: while ``converged``; never in a campaign trial).
+
+**Several fields.** A problem with further fields (:attr:`MatchProblem.fields`: a
+gravimeter or a magnetometer beside the echosounder) gives a filter that weighs them
+(``fuses_fields``: PMF, PF, MPF) one observation per field at every sample and one set of
+nuisance states per field -- its own common offset (at its map's default prior,
+:func:`~geofix.filters.nuisance.default_offset_std`, when the settings leave the offset
+to the map), residual scale and representation share, learnt from its own innovations.
+The filter's update adds the fields' log-likelihoods at the same hypotheses (the product
+of their likelihoods), and a filter that carries the offset per hypothesis carries one
+per field, each by the rule above for its own pings. A filter that does not weigh further
+fields (SITAN) uses the primary field alone.
 """
 
 from __future__ import annotations
@@ -151,16 +162,53 @@ class FilterStepper:
         self.state = None
         self._representation: Grid | None = None  # the map's representation error, on use
         self._last_ping_at: np.ndarray | None = None  # indicated position of the last ping
+        self.fields: tuple[FilterStepper, ...] = ()  # one per further field (start)
+        self._field_index: int | None = None  # which further field this stepper is
+        self._field_obs: tuple[list[Observation], ...] = ()
         self.reset_nuisance(0.0)
 
     # ------------------------------------------------------------------ the plain loop
     def start(self, problem: MatchProblem) -> None:
         """Initialise from a problem's prior (its first sample); the nuisance at its priors.
 
-        The state is kept when ``filter.initialize`` raises.
+        A filter that weighs further fields (``fuses_fields``) gets one stepper of
+        nuisance states per field of ``problem.fields`` (:attr:`fields`) and their
+        observations. The state is kept when ``filter.initialize`` raises.
         """
         self.state = self.filter.initialize(problem, self.rng)
         self.reset_nuisance(float(problem.times[0]))
+        self.fields, self._field_obs = (), ()
+        if problem.fields and getattr(self.filter, "fuses_fields", False):
+            self._start_fields(problem)
+
+    def _start_fields(self, problem: MatchProblem) -> None:
+        """A nuisance stepper and the observations of every further field of ``problem``."""
+        from geofix.filters.base import observations  # base imports this module
+
+        own = self.settings
+        # a further field's offset prior is its own map's default (other units)
+        settings = replace(own, depth_bias_std=0.0 if own.depth_bias_std == 0 else None)
+        steppers, obs = [], []
+        for index, field in enumerate(problem.fields):
+            stepper = FilterStepper(self.filter, field.grid, settings, self.rng)
+            stepper._field_index = index
+            stepper.state = self.state
+            stepper.reset_nuisance(float(problem.times[0]))
+            steppers.append(stepper)
+            alone = replace(
+                problem,
+                grid=field.grid,
+                measured=field.measured,
+                offsets=field.offsets,
+                noise_std=field.noise_std,
+                sensor=field.sensor,
+                map_error_std=field.map_error_std,
+                beam_noise_std=field.beam_noise_std,
+                lag_s=field.lag_s,
+                fields=(),
+            )
+            obs.append(observations(alone))
+        self.fields, self._field_obs = tuple(steppers), tuple(obs)
 
     def predict(self, motion: Motion) -> None:
         """Apply the INS motion of one step to the posterior."""
@@ -182,10 +230,33 @@ class FilterStepper:
             ``(mean (2,), covariance (2, 2))`` of the posterior, metres and m^2.
         """
         relative, weighed = self.weigh(obs, t)
+        if self.fields:
+            return self._update_fields(obs, relative, weighed, t)
         if np.isfinite(weighed.values).any():
             prior = self.filter.estimate(self.state)
             if self.fold(weighed):
                 self.learn(relative, weighed, prior)
+        return self.estimate()
+
+    def _update_fields(
+        self, obs: Observation, relative: Observation, weighed: Observation, t: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`update` with the further fields' pings of the same sample folded in too."""
+        pings = []
+        for stepper, field_obs in zip(self.fields, self._field_obs, strict=True):
+            stepper.state = self.state
+            pings.append((stepper, *stepper.weigh(field_obs[obs.index], t)))
+        valid = [np.isfinite(w.values).any() for _, _, w in pings]
+        if np.isfinite(weighed.values).any() or any(valid):
+            prior = self.filter.estimate(self.state)
+            extra = tuple((stepper._for_filter(w), stepper.grid) for stepper, _, w in pings)
+            if self.fold(weighed, extra):
+                if np.isfinite(weighed.values).any():
+                    self.learn(relative, weighed, prior)
+                for (stepper, rel, w), ok in zip(pings, valid, strict=True):
+                    stepper.state = self.state
+                    if ok:
+                        stepper.learn(rel, w, prior)
         return self.estimate()
 
     def estimate(self) -> tuple[np.ndarray, np.ndarray]:
@@ -232,17 +303,24 @@ class FilterStepper:
         weighed = self.scale.scaled(relative) if self.settings.adaptive_noise else relative
         return relative, weighed
 
-    def fold(self, weighed: Observation) -> bool:
+    def fold(self, weighed: Observation, fields: tuple = ()) -> bool:
         """Fold the weighed ping in; a step that leaves a non-finite estimate is refused.
 
         The state before it is kept (a reading the input checks let through, such as
         1e160 on a map of metres, must not poison the filter). Returns whether the ping
-        was folded in.
+        was folded in. ``fields`` holds ``(ping as the filter takes it, map)`` of every
+        further field at the same sample (in order, a ping without a value included),
+        handed to a filter that weighs them.
         """
         before = self.state
         with np.errstate(all="ignore"):
             ping = self._for_filter(weighed)
-            self.state = self.filter.update(self.state, ping, self.grid, self.rng)
+            if fields:
+                self.state = self.filter.update(
+                    self.state, ping, self.grid, self.rng, fields=fields
+                )
+            else:
+                self.state = self.filter.update(self.state, ping, self.grid, self.rng)
             mean, cov = self.filter.estimate(self.state)
         if np.isfinite(mean).all() and np.isfinite(cov).all():
             return True
@@ -281,7 +359,10 @@ class FilterStepper:
         if not self.offset.active:
             return
         if self.carries_offset:  # the filter's own offsets, summarised for the report
-            moments = self.filter.offset_moments(self.state)
+            if self._field_index is None:
+                moments = self.filter.offset_moments(self.state)
+            else:
+                moments = self.filter.offset_moments(self.state, field=self._field_index)
             if moments is not None:
                 self.offset = replace(self.offset, mean=moments[0], var=moments[1])
             return

@@ -143,11 +143,20 @@ class RandomWalk:
         kernels = (k0, k1)
         log_weight = ops.convolve_log(state.log_weight, kernels)
         centre = state.centre + np.asarray(motion.displacement, dtype=float)
-        offset = state.offset
-        if offset is not None:
+
+        def mixed(offset):
+            if offset is None:
+                return None
             mean = mixed_offsets(state.log_weight, offset.mean, kernels)
-            offset = replace(offset, mean=mean).predicted(motion.dt)
-        return replace(state, log_weight=log_weight, centre=centre, offset=offset)
+            return replace(offset, mean=mean).predicted(motion.dt)
+
+        return replace(
+            state,
+            log_weight=log_weight,
+            centre=centre,
+            offset=mixed(state.offset),
+            field_offsets=tuple(mixed(o) for o in state.field_offsets),
+        )
 
     def follow(self, pmf: Pmf, state: PmfState, process_var: float) -> PmfState:
         """Move the log-density onto the ideal grid for the coming prediction if needed.
@@ -167,14 +176,18 @@ class RandomWalk:
             return state
         ops.check_regrid(shape)
         log_weight = ops.resample_grid(state.log_weight, state.frame, frame, (mean, cov), shape)
-        offset = state.offset
-        if offset is not None:
-            moved = regridded_offsets(offset.mean, state.frame, frame, log_weight.shape)
-            offset = replace(offset, mean=moved)
+
+        def moved(offset):
+            if offset is None:
+                return None
+            mean = regridded_offsets(offset.mean, state.frame, frame, log_weight.shape)
+            return replace(offset, mean=mean)
+
         centre, axes, spacing = frame
         return replace(
             state,
-            offset=offset,
+            offset=moved(state.offset),
+            field_offsets=tuple(moved(o) for o in state.field_offsets),
             log_weight=log_weight,
             centre=centre,
             axes=axes,
@@ -296,14 +309,18 @@ class InsErrorState:
         kernels = (k0, k1)
         mu_next = f @ mu
         sigma_next = f @ sigma @ f.T + q
-        offset = state.offset
-        if offset is not None:
+
+        def carried(offset):
+            if offset is None:
+                return None
             moved_offsets = regridded_offsets(offset.mean, state.frame, pulled, shape)
             mixed = mixed_offsets(log_weight, moved_offsets, kernels)
-            offset = replace(offset, mean=mixed).predicted(motion.dt)
+            return replace(offset, mean=mixed).predicted(motion.dt)
+
         return replace(
             state,
-            offset=offset,
+            offset=carried(state.offset),
+            field_offsets=tuple(carried(o) for o in state.field_offsets),
             log_weight=ops.convolve_log(log_weight, kernels),
             centre=centre,
             axes=axes,

@@ -150,6 +150,9 @@ class MpfState:
         Likelihoods evaluated and resampling steps so far.
     offset : HypothesisOffset or None
         Each particle's common offset (``map_model=imperfect``), from the first ping on.
+    field_offsets : tuple
+        The same per further field (:attr:`MatchProblem.fields`, in order; None for a
+        field without one), from its first ping on.
     """
 
     dp: np.ndarray
@@ -165,6 +168,7 @@ class MpfState:
     evaluations: int = 0
     resamples: int = 0
     offset: HypothesisOffset | None = None
+    field_offsets: tuple = ()
 
     @property
     def positions(self) -> np.ndarray:
@@ -311,6 +315,11 @@ class Mpf(ParticleSettings):
             state = self._resample(state, rng)
         if state.offset is not None:
             state = replace(state, offset=state.offset.predicted(motion.dt))
+        if state.field_offsets:
+            moved = tuple(
+                None if o is None else o.predicted(motion.dt) for o in state.field_offsets
+            )
+            state = replace(state, field_offsets=moved)
         k = state.step
         model, f, q = step_matrices(
             state.model, k, motion.displacement, motion.dt, motion.process_var
@@ -332,7 +341,12 @@ class Mpf(ParticleSettings):
             model=model,
         )
 
-    def update(self, state: MpfState, obs: Observation, grid: Grid, rng) -> MpfState:
+    #: The update weighs further fields (``fields``): the sum of their log-likelihoods.
+    fuses_fields: ClassVar[bool] = True
+
+    def update(
+        self, state: MpfState, obs: Observation, grid: Grid, rng, fields: tuple = ()
+    ) -> MpfState:
         """Terrain likelihood of every particle; the DVL's Kalman update when it aids.
 
         An update so sharp that it would leave fewer than ``min_update_ess`` effective
@@ -353,11 +367,19 @@ class Mpf(ParticleSettings):
             The prior map.
         rng : numpy.random.Generator
             Random draws of the update.
+        fields : tuple
+            ``(Observation, Grid)`` of every further field at this sample (map units of
+            that map; ``()``: none): each adds its log-likelihood at the same particles,
+            read on its own map, its offset marginalised in its ping (never carried per
+            particle), within the same progressive correction.
         """
         log_weight = state.log_weight
         if state.dvl is not None and np.isfinite(state.dvl[obs.index]).all():
             state, log_weight = self._dvl_update(state, state.dvl[obs.index], log_weight)
             state = replace(state, log_weight=log_normalised(log_weight))
+        if fields:
+            state = replace(state, log_weight=log_normalised(log_weight))
+            return self._update_fields(state, obs, grid, rng, fields)
         if not np.isfinite(obs.values).any():
             return replace(state, log_weight=log_normalised(log_weight))
         if self.carries_offset and state.offset is None:
@@ -380,6 +402,45 @@ class Mpf(ParticleSettings):
             state = replace(state, offset=state.offset.updated(grid, state.positions, obs))
         return replace(state, evaluations=state.evaluations + reads)
 
+    def _update_fields(self, state: MpfState, obs: Observation, grid: Grid, rng, fields):
+        """The primary ping (when it has a value) and every further field's, summed."""
+        primary = bool(np.isfinite(obs.values).any())
+        valid = [bool(np.isfinite(o.values).any()) for o, _ in fields]
+        if not (primary or any(valid)):
+            return state
+        if primary and self.carries_offset and state.offset is None:
+            state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
+        state = replace(state, field_offsets=_started(self, state, fields))
+        model = self.likelihood
+
+        def likelihood(current: MpfState) -> np.ndarray:
+            total = np.zeros(current.log_weight.shape)
+            if primary:
+                total = total + model.particles(
+                    grid, obs, current.positions, current.spacing, current.cell, current.offset, rng
+                )
+            for i, (field_obs, field_grid) in enumerate(fields):
+                if valid[i]:
+                    total = total + model.particles(
+                        field_grid,
+                        field_obs,
+                        current.positions,
+                        current.spacing,
+                        field_grid.cell_size,
+                        current.field_offsets[i],
+                        rng,
+                    )
+            return total
+
+        state, reads = self.progressive.apply(state, likelihood, self._spread_copies, rng)
+        if primary and state.offset is not None:
+            state = replace(state, offset=state.offset.updated(grid, state.positions, obs))
+        learnt = tuple(
+            o if o is None or not ok else o.updated(g, state.positions, fo)
+            for o, ok, (fo, g) in zip(state.field_offsets, valid, fields, strict=True)
+        )
+        return replace(state, evaluations=state.evaluations + reads, field_offsets=learnt)
+
     def _spread_copies(self, state: MpfState, rng) -> MpfState:
         """Resample (same count) and spread each copy over its original's square share."""
         count = state.dp.shape[0]
@@ -395,6 +456,7 @@ class Mpf(ParticleSettings):
             log_weight=np.full(count, -np.log(count)),
             resamples=state.resamples + 1,
             offset=None if state.offset is None else state.offset.take(index),
+            field_offsets=_taken(state.field_offsets, index),
         )
 
     def mode(self, state: MpfState) -> np.ndarray:
@@ -504,7 +566,32 @@ class Mpf(ParticleSettings):
             spacing=spacing,
             resamples=state.resamples + 1,
             offset=None if state.offset is None else state.offset.take(index),
+            field_offsets=_taken(state.field_offsets, index),
         )
+
+
+def _field_offset(state, field: int):
+    """Further field ``field``'s hypothesis offsets of a state (None without any)."""
+    return state.field_offsets[field] if field < len(state.field_offsets) else None
+
+
+def _taken(field_offsets: tuple, index) -> tuple:
+    """Every further field's hypothesis offsets of the hypotheses ``index``."""
+    return tuple(None if o is None else o.take(index) for o in field_offsets)
+
+
+def _started(filt, state, fields) -> tuple:
+    """Every further field's hypothesis offsets, started at its first ping that asks for one.
+
+    A field's offset is carried per hypothesis when the filter carries offsets and its
+    ping says so (``bias_per_hypothesis``, the stepper's choice for pings of fewer than
+    three beams); None otherwise.
+    """
+    out = list(state.field_offsets) + [None] * (len(fields) - len(state.field_offsets))
+    for i, (field_obs, _) in enumerate(fields):
+        if out[i] is None and filt.carries_offset and np.isfinite(field_obs.values).any():
+            out[i] = HypothesisOffset.start(state.log_weight.shape, field_obs)
+    return tuple(out)
 
 
 #: Range of Mardia's kurtosis of the particle positions within which the set is taken as

@@ -92,6 +92,9 @@ class PfState:
         Number of resampling steps so far.
     offset : HypothesisOffset or None
         Each particle's common offset (``map_model=imperfect``), from the first ping on.
+    field_offsets : tuple
+        The same per further field (:attr:`MatchProblem.fields`, in order; None for a
+        field without one), from its first ping on.
     """
 
     particles: np.ndarray
@@ -101,6 +104,7 @@ class PfState:
     evaluations: int = 0
     resamples: int = 0
     offset: HypothesisOffset | None = None
+    field_offsets: tuple = ()
 
     @functools.cached_property
     def weights(self) -> np.ndarray:
@@ -237,9 +241,13 @@ class ParticleSettings(RecursiveFilter):
         """Each particle carries its own common offset (``map_model=imperfect``)."""
         return self.map_model == "imperfect"
 
-    def offset_moments(self, state) -> tuple[float, float] | None:
-        """The posterior offset's mean and variance (map units), or None without one."""
-        return None if state.offset is None else state.offset.moments(state.weights)
+    def offset_moments(self, state, field: int | None = None) -> tuple[float, float] | None:
+        """The posterior offset's mean and variance (map units), or None without one.
+
+        ``field``: that further field's offset (its index in ``fields``) instead.
+        """
+        offset = state.offset if field is None else _field_offset(state, field)
+        return None if offset is None else offset.moments(state.weights)
 
 
 @dataclass(frozen=True)
@@ -322,6 +330,11 @@ class Pf(ParticleSettings):
             state = self._resample(state, rng)
         if state.offset is not None:
             state = replace(state, offset=state.offset.predicted(motion.dt))
+        if state.field_offsets:
+            moved = tuple(
+                None if o is None else o.predicted(motion.dt) for o in state.field_offsets
+            )
+            state = replace(state, field_offsets=moved)
         draws = rng.standard_normal(state.particles.shape)
         displacement = np.asarray(motion.displacement, dtype=float)
         particles = kernels.moved(
@@ -332,7 +345,12 @@ class Pf(ParticleSettings):
         )  # state.particles + displacement + sqrt(process_var) * draws, one pass
         return replace(state, particles=particles)
 
-    def update(self, state: PfState, obs: Observation, grid: Grid, rng) -> PfState:
+    #: The update weighs further fields (``fields``): the sum of their log-likelihoods.
+    fuses_fields: ClassVar[bool] = True
+
+    def update(
+        self, state: PfState, obs: Observation, grid: Grid, rng, fields: tuple = ()
+    ) -> PfState:
         """Add every particle's measurement log-likelihood (all beams at once).
 
         An update so sharp that it would leave fewer than ``min_update_ess`` effective
@@ -356,7 +374,14 @@ class Pf(ParticleSettings):
             The prior map.
         rng : numpy.random.Generator
             Random draws of the update.
+        fields : tuple
+            ``(Observation, Grid)`` of every further field at this sample (map units of
+            that map; ``()``: none): each adds its log-likelihood at the same particles,
+            read on its own map, its offset marginalised in its ping (never carried per
+            particle), within the same progressive correction.
         """
+        if fields:
+            return self._update_fields(state, obs, grid, rng, fields)
         if not np.isfinite(obs.values).any():
             return state
         if self.carries_offset and state.offset is None:
@@ -379,6 +404,45 @@ class Pf(ParticleSettings):
             state = replace(state, offset=state.offset.updated(grid, state.particles, obs))
         return replace(state, evaluations=state.evaluations + reads)
 
+    def _update_fields(self, state: PfState, obs: Observation, grid: Grid, rng, fields):
+        """The primary ping (when it has a value) and every further field's, summed."""
+        primary = bool(np.isfinite(obs.values).any())
+        valid = [bool(np.isfinite(o.values).any()) for o, _ in fields]
+        if not (primary or any(valid)):
+            return state
+        if primary and self.carries_offset and state.offset is None:
+            state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
+        state = replace(state, field_offsets=_started(self, state, fields))
+        model = self.likelihood
+
+        def likelihood(current: PfState) -> np.ndarray:
+            total = np.zeros(current.log_weight.shape)
+            if primary:
+                total = total + model.particles(
+                    grid, obs, current.particles, current.spacing, current.cell, current.offset, rng
+                )
+            for i, (field_obs, field_grid) in enumerate(fields):
+                if valid[i]:
+                    total = total + model.particles(
+                        field_grid,
+                        field_obs,
+                        current.particles,
+                        current.spacing,
+                        field_grid.cell_size,
+                        current.field_offsets[i],
+                        rng,
+                    )
+            return total
+
+        state, reads = self.progressive.apply(state, likelihood, self._spread_copies, rng)
+        if primary and state.offset is not None:
+            state = replace(state, offset=state.offset.updated(grid, state.particles, obs))
+        learnt = tuple(
+            o if o is None or not ok else o.updated(g, state.particles, fo)
+            for o, ok, (fo, g) in zip(state.field_offsets, valid, fields, strict=True)
+        )
+        return replace(state, evaluations=state.evaluations + reads, field_offsets=learnt)
+
     def _spread_copies(self, state: PfState, rng) -> PfState:
         """Resample (same count) and spread each copy uniformly over its original's share."""
         count = state.particles.shape[0]
@@ -390,6 +454,7 @@ class Pf(ParticleSettings):
             log_weight=np.full(count, -np.log(count)),
             resamples=state.resamples + 1,
             offset=None if state.offset is None else state.offset.take(index),
+            field_offsets=_taken(state.field_offsets, index),
         )
 
     def estimate(self, state: PfState) -> tuple[np.ndarray, np.ndarray]:
@@ -426,7 +491,32 @@ class Pf(ParticleSettings):
             spacing=spacing,
             resamples=state.resamples + 1,
             offset=None if state.offset is None else state.offset.take(index),
+            field_offsets=_taken(state.field_offsets, index),
         )
+
+
+def _field_offset(state, field: int):
+    """Further field ``field``'s hypothesis offsets of a state (None without any)."""
+    return state.field_offsets[field] if field < len(state.field_offsets) else None
+
+
+def _taken(field_offsets: tuple, index) -> tuple:
+    """Every further field's hypothesis offsets of the hypotheses ``index``."""
+    return tuple(None if o is None else o.take(index) for o in field_offsets)
+
+
+def _started(filt, state, fields) -> tuple:
+    """Every further field's hypothesis offsets, started at its first ping that asks for one.
+
+    A field's offset is carried per hypothesis when the filter carries offsets and its
+    ping says so (``bias_per_hypothesis``, the stepper's choice for pings of fewer than
+    three beams); None otherwise.
+    """
+    out = list(state.field_offsets) + [None] * (len(fields) - len(state.field_offsets))
+    for i, (field_obs, _) in enumerate(fields):
+        if out[i] is None and filt.carries_offset and np.isfinite(field_obs.values).any():
+            out[i] = HypothesisOffset.start(state.log_weight.shape, field_obs)
+    return tuple(out)
 
 
 __all__ = ["ParticleSettings", "Pf", "PfState"]

@@ -107,6 +107,9 @@ class PmfState:
         the INS error state along the indicated track, and the DVL's innovations.
     offset : HypothesisOffset or None
         Each node's common offset (``map_model=imperfect``), from the first ping on.
+    field_offsets : tuple
+        The same per further field (:attr:`MatchProblem.fields`, in order; None for a
+        field without one), from its first ping on.
     """
 
     log_weight: np.ndarray
@@ -118,6 +121,7 @@ class PmfState:
     regrids: int = 0
     track: ErrorStateTrack | None = None
     offset: HypothesisOffset | None = None
+    field_offsets: tuple = ()
 
     @property
     def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -341,11 +345,19 @@ class Pmf(RecursiveFilter):
         """
         return self.motion_model.predict(self, state, motion)
 
-    def update(self, state: PmfState, obs: Observation, grid: Grid, rng) -> PmfState:
+    #: The update weighs further fields (``fields``): the sum of their log-likelihoods.
+    fuses_fields: ClassVar[bool] = True
+
+    def update(
+        self, state: PmfState, obs: Observation, grid: Grid, rng, fields: tuple = ()
+    ) -> PmfState:
         """Add every node's measurement log-likelihood (all beams at once).
 
         With ``model=errstate`` and an aiding DVL, the DVL velocity first updates the
         error-state Kalman filter and weighs the nodes (the motion model's ``aid``).
+        Each further field adds its own log-likelihood at the same nodes, read on its own
+        map at the nodes' positions (metres), its discretisation noise from its map's
+        cell; its own offset per node when the ping asks for one (as the primary's).
 
         Parameters
         ----------
@@ -357,8 +369,13 @@ class Pmf(RecursiveFilter):
             The prior map.
         rng : numpy.random.Generator
             Random draws of the update.
+        fields : tuple
+            ``(Observation, Grid)`` of every further field at this sample (map units of
+            that map; ``()``: none).
         """
         state = self.motion_model.aid(state, obs)
+        if fields:
+            return self._update_fields(state, obs, grid, fields)
         if not np.isfinite(obs.values).any():
             return state
         if self.carries_offset and state.offset is None:
@@ -371,16 +388,54 @@ class Pmf(RecursiveFilter):
             offset=offset,
         )
 
+    def _update_fields(self, state: PmfState, obs: Observation, grid: Grid, fields) -> PmfState:
+        """The primary ping (when it has a value) and every further field's, summed."""
+        ll, offset = 0.0, state.offset
+        if np.isfinite(obs.values).any():
+            if self.carries_offset and state.offset is None:
+                state = replace(state, offset=HypothesisOffset.start(state.shape, obs))
+            ll, offset = self.likelihood.nodes(grid, obs, state)
+        evaluations = int(np.size(ll)) if np.ndim(ll) else 0
+        count = len(state.field_offsets)
+        field_offsets = list(state.field_offsets) + [None] * (len(fields) - count)
+        for i, (field_obs, field_grid) in enumerate(fields):
+            if not np.isfinite(field_obs.values).any():
+                continue
+            own = field_offsets[i]
+            if own is None and self.carries_offset:
+                own = HypothesisOffset.start(state.shape, field_obs)
+            alone = replace(state, cell=field_grid.cell_size, offset=own)
+            field_ll, field_offsets[i] = self.likelihood.nodes(field_grid, field_obs, alone)
+            ll = ll + field_ll
+            evaluations += field_ll.size
+        if not evaluations:
+            return state
+        return replace(
+            state,
+            log_weight=ops.normalise(state.log_weight + ll),
+            evaluations=state.evaluations + evaluations,
+            offset=offset,
+            field_offsets=tuple(field_offsets),
+        )
+
     @property
     def carries_offset(self) -> bool:
         """Each node carries its own common offset (``map_model=imperfect``)."""
         return self.map_model == "imperfect"
 
-    def offset_moments(self, state: PmfState) -> tuple[float, float] | None:
-        """The posterior offset's mean and variance (map units), or None without one."""
-        if state.offset is None:
+    def offset_moments(
+        self, state: PmfState, field: int | None = None
+    ) -> tuple[float, float] | None:
+        """The posterior offset's mean and variance (map units), or None without one.
+
+        ``field``: that further field's offset (its index in ``fields``) instead.
+        """
+        offset = state.offset
+        if field is not None:
+            offset = state.field_offsets[field] if field < len(state.field_offsets) else None
+        if offset is None:
             return None
-        return state.offset.moments(np.exp(state.log_weight))
+        return offset.moments(np.exp(state.log_weight))
 
     def estimate(self, state: PmfState) -> tuple[np.ndarray, np.ndarray]:
         """Posterior mean ``(2,)`` and covariance ``(2, 2)``, metres and m^2."""

@@ -1,5 +1,8 @@
 r"""SITAN and the SITAN filter bank (source 002: Zheng, Wang, Bian, Ship Electronic Eng. 2008).
 
+SITAN weighs a problem's primary field only: the further fields of a several-sensor
+mission (:attr:`geofix.problem.MatchProblem.fields`) are weighed by PMF, PF and MPF.
+
 SITAN (Sandia inertial terrain-aided navigation) is an extended Kalman filter on the
 error state ``X = [dx, dy, dh, dvx, dvy]``:
 
