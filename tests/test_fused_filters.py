@@ -63,7 +63,7 @@ def scenario(kinds: tuple[str, ...], monkeypatch) -> object:
             },
             "trials": 4,
             "seed": 8,
-        }  # fmt: skip
+        }
     )
     return scen, grids[kinds[0]]
 
