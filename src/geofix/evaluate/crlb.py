@@ -49,6 +49,12 @@ formed (next to no-data) carries no information.
 The heading error's rotation of off-nadir footprints is ignored (the bound is then
 slightly optimistic).
 
+**Several fields.** A trial with further fields (a scenario's ``sensors:`` list,
+:attr:`geofix.sim.trial.Trial.fields`) has independent noise in each, so the fields'
+information adds: ``I_k`` is the sum over fields of ``sum_b g g^T / var_b``, each with
+its own map's gradients at its own footprints and its own beams' variance, and every
+bound above is taken on that sum (:func:`trial_information`, :func:`field_information`).
+
 A gravimeter's first-order lag changes none of these bounds. The simulator adds the
 sensor noise and map error *before* the lag (:mod:`geofix.sensors.echosounder`), so the
 lagged readings ``y = L x`` are an invertible, known, lower-triangular linear map ``L``
@@ -214,18 +220,74 @@ def trial_beam_variance(trial) -> np.ndarray:
     return std**2 + float(trial.map_error_std) ** 2
 
 
-def trial_information(trial, grid: Grid, beam_var=None) -> np.ndarray:
+def trial_information(trial, grid: Grid, beam_var=None, fields: bool = True) -> np.ndarray:
     """Per-sample information along a trial's true track, 1/m^2, shape ``(n, 2, 2)``.
 
-    ``beam_var`` (field units squared, scalar or ``(b,)``) defaults to
-    :func:`trial_beam_variance` (the trial's per-beam noise plus map error). The
-    gradients are those of the simulator's read (:data:`geofix.sim.sensing.TRUTH_READ`).
+    Parameters
+    ----------
+    trial : Trial
+        The mission: true track, headings, beam offsets, readings (NaN beams carry no
+        information) and its further fields (``trial.fields``).
+    grid : Grid
+        The map the primary field's readings were drawn from.
+    beam_var : float or array_like, optional
+        The primary field's measurement variance, its units squared, scalar or ``(b,)``;
+        default :func:`trial_beam_variance` (the trial's per-beam noise plus map error).
+    fields : bool
+        Add every further field's information (:func:`field_information`); False: the
+        primary field's alone.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, 2, 2)`` information, 1/m^2, from the gradients of the simulator's read
+        (:data:`geofix.sim.sensing.TRUTH_READ`).
     """
     if beam_var is None:
         beam_var = trial_beam_variance(trial)
     beam_var = np.maximum(np.asarray(beam_var, float), 1e-12)
     gx, gy = beam_gradients(grid, trial.truth, trial.true_heading, trial.offsets, TRUTH_READ)
-    return sample_information(gx, gy, beam_var, valid=np.isfinite(trial.measured))
+    info = sample_information(gx, gy, beam_var, valid=np.isfinite(trial.measured))
+    if fields:
+        for field in getattr(trial, "fields", ()):
+            info = info + field_information(trial, field)
+    return info
+
+
+def field_information(trial, field, offset_var: float = 0.0, prior: bool = False) -> np.ndarray:
+    """Per-sample information of one further field of a trial, 1/m^2, ``(n, 2, 2)``.
+
+    Parameters
+    ----------
+    trial : Trial
+        The mission (true track and headings).
+    field : TrialField
+        The field: its beams' offsets, readings, noise (``beam_noise_std``, its map units)
+        and maps (``sensed``, the field its readings were drawn from, or ``grid``).
+    offset_var : float
+        Variance of a common offset per sample, the field's units squared (0: none;
+        ``inf``: unknown, each sample tells the position by its shape alone).
+    prior : bool
+        The bound of a vehicle with the prior map (:func:`imperfect_map_crlb`): the
+        prior's gradients (bilinear) and the map error's variance at the track added to
+        every beam's; False: the gradients of the field the sensor read.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, 2, 2)`` information, 1/m^2.
+    """
+    sensed = field.grid if field.sensed is None else field.sensed
+    var = np.asarray(field.beam_noise_std, float) ** 2
+    read, source = TRUTH_READ, sensed
+    if prior:
+        read, source = "bilinear", field.grid
+        var = var + _error_variance(trial, field.offsets, field.measured, sensed, field.grid)
+    var = np.maximum(var, 1e-12)
+    gx, gy = beam_gradients(source, trial.truth, trial.true_heading, field.offsets, read)
+    valid = np.isfinite(field.measured) & np.isfinite(gx) & np.isfinite(gy)
+    gx, gy = np.where(valid, gx, 0.0), np.where(valid, gy, 0.0)
+    return sample_information(gx, gy, var, valid=valid, offset_var=offset_var)
 
 
 def error_state_bound(es, info: np.ndarray, dvl: bool = True) -> np.ndarray:
@@ -329,11 +391,16 @@ def map_error_variance_at_track(trial, grid: Grid, prior: Grid) -> float:
     treats as a nuisance of its own) removed, field units squared; 0 when the prior is the
     seabed.
     """
+    return _error_variance(trial, trial.offsets, trial.measured, grid, prior)
+
+
+def _error_variance(trial, offsets, measured, grid: Grid, prior: Grid) -> float:
+    """:func:`map_error_variance_at_track` for beams ``offsets`` and readings ``measured``."""
     if prior is grid:
         return 0.0
-    truth = predict_track(grid, trial.truth, trial.true_heading, trial.offsets, TRUTH_READ)
-    read = predict_track(prior, trial.truth, trial.true_heading, trial.offsets, "bilinear")
-    error = (truth - read)[np.isfinite(trial.measured)]
+    truth = predict_track(grid, trial.truth, trial.true_heading, offsets, TRUTH_READ)
+    read = predict_track(prior, trial.truth, trial.true_heading, offsets, "bilinear")
+    error = (truth - read)[np.isfinite(measured)]
     error = error[np.isfinite(error)]
     return float(np.var(error)) if error.size else 0.0
 
@@ -351,7 +418,9 @@ def imperfect_map_crlb(trial, grid: Grid, beam_var=None, offset_var=np.inf) -> T
     each sample tells the position by its shape alone,
     :func:`geofix.measurement.sample_information`). A misregistration is a bias no
     estimator sees and is not in it. With no prior map (the prior is the seabed) and
-    ``offset_var=0`` it is :func:`trial_crlb`.
+    ``offset_var=0`` it is :func:`trial_crlb`. Every further field of the trial adds its
+    information on the same footing (its own prior map, map error and beams; its offset
+    unknown per sample unless ``offset_var`` is 0, :func:`field_information`).
 
     Returns
     -------
@@ -368,6 +437,9 @@ def imperfect_map_crlb(trial, grid: Grid, beam_var=None, offset_var=np.inf) -> T
     valid = np.isfinite(trial.measured) & np.isfinite(gx) & np.isfinite(gy)
     gx, gy = np.where(valid, gx, 0.0), np.where(valid, gy, 0.0)
     info = sample_information(gx, gy, var, valid=valid, offset_var=offset_var)
+    field_offset_var = 0.0 if offset_var == 0 else np.inf  # units of their own
+    for field in getattr(trial, "fields", ()):
+        info = info + field_information(trial, field, field_offset_var, prior=True)
     rw = _random_walk_traces(trial, info)
     last = trial.leg_slices()[-1]
     batch = float(inverse_trace(info[last].sum(axis=0)))
