@@ -115,3 +115,19 @@ def test_a_pmf_update_with_a_field_is_the_two_updates_in_turn(monkeypatch):
     ll_gravity, _ = pmf.likelihood.nodes(field.grid, gravity_obs, state)
     assert np.ptp(ll_gravity) > 1.0  # the gravity ping does weigh the nodes
     assert np.isclose(ops.normalise(fused.log_weight).max(), fused.log_weight.max())
+
+
+def test_a_field_on_a_coarser_grid_of_its_own_is_read_at_the_node_positions(monkeypatch):
+    coarse = Grid(
+        8.0 * np.sin((np.indices((45, 45))[0] * 250.0) / 700.0),
+        0.0, 0.0, 250.0, 250.0, kind="gravity", units="mGal",
+    )  # fmt: skip
+    scen, grid = scenario(("depth", "gravity"), monkeypatch)
+    monkeypatch.setattr(simulate_module, "prepare_field_maps", lambda scen: (coarse,))
+    errors = []
+    for i in range(2):
+        trial = simulate_trial(scen, grid, i)
+        assert trial.fields[0].grid.cell_size == 250.0
+        result = run_trial(parse_method_spec("pmf"), trial, grid, method_rng(8, i, "pmf"))
+        errors.append(result.error[-1])
+    assert float(np.sqrt(np.mean(np.square(errors)))) < 30.0, errors
