@@ -49,7 +49,7 @@ from geofix.filters.nuisance import (
     representation_std,
 )
 from geofix.maps.grid import Grid
-from geofix.measurement import map_error_variance
+from geofix.measurement import lag_compensated, map_error_variance
 
 if TYPE_CHECKING:  # annotations only: base.run_filter imports this module
     from geofix.filters.base import Motion, Observation
@@ -164,7 +164,7 @@ class FilterStepper:
         self._last_ping_at: np.ndarray | None = None  # indicated position of the last ping
         self.fields: tuple[FilterStepper, ...] = ()  # one per further field (start)
         self._field_index: int | None = None  # which further field this stepper is
-        self._field_obs: tuple[list[Observation], ...] = ()
+        self._field_obs: tuple[tuple, ...] = ()  # (values, offsets, variance) per field
         self.reset_nuisance(0.0)
 
     # ------------------------------------------------------------------ the plain loop
@@ -182,9 +182,11 @@ class FilterStepper:
             self._start_fields(problem)
 
     def _start_fields(self, problem: MatchProblem) -> None:
-        """A nuisance stepper and the observations of every further field of ``problem``."""
-        from geofix.filters.base import observations  # base imports this module
+        """A nuisance stepper and the readings of every further field of ``problem``.
 
+        Each field's readings with its declared lag undone and its per-beam variance,
+        as :func:`geofix.filters.base.observations` gives the primary field's.
+        """
         own = self.settings
         # a further field's offset prior is its own map's default (other units)
         settings = replace(own, depth_bias_std=0.0 if own.depth_bias_std == 0 else None)
@@ -207,8 +209,26 @@ class FilterStepper:
                 lag_s=field.lag_s,
                 fields=(),
             )
-            obs.append(observations(alone))
+            if alone.beam_noise_std is None:
+                noise_var = max(alone.noise_std**2 + alone.map_error_std**2, 1e-12)
+            else:
+                noise_var = np.maximum(alone.beam_noise_var(), 1e-12)
+                noise_var.setflags(write=False)
+            obs.append((lag_compensated(alone), np.asarray(field.offsets), noise_var))
         self.fields, self._field_obs = tuple(steppers), tuple(obs)
+
+    def _field_ping(self, i: int, obs: Observation) -> Observation:
+        """Further field ``i``'s reading at the sample of the primary ping ``obs``."""
+        values, offsets, noise_var = self._field_obs[i]
+        return replace(
+            obs,
+            values=values[obs.index],
+            offsets=offsets,
+            noise_var=noise_var,
+            bias_var=0.0,
+            bias_walk=0.0,
+            bias_per_hypothesis=False,
+        )
 
     def predict(self, motion: Motion) -> None:
         """Apply the INS motion of one step to the posterior."""
@@ -243,9 +263,9 @@ class FilterStepper:
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`update` with the further fields' pings of the same sample folded in too."""
         pings = []
-        for stepper, field_obs in zip(self.fields, self._field_obs, strict=True):
+        for i, stepper in enumerate(self.fields):
             stepper.state = self.state
-            pings.append((stepper, *stepper.weigh(field_obs[obs.index], t)))
+            pings.append((stepper, *stepper.weigh(self._field_ping(i, obs), t)))
         valid = [np.isfinite(w.values).any() for _, _, w in pings]
         if np.isfinite(weighed.values).any() or any(valid):
             prior = self.filter.estimate(self.state)
