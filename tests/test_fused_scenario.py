@@ -126,3 +126,19 @@ def test_export_writes_and_reads_back_the_further_fields(tmp_path):
     assert np.array_equal(field.grid.values, again.fields[0].grid.values)
     assert field.kind == "gravity" and field.sensor == "gravimeter"
     assert field.grid.units == "mGal" and field.noise_std == 1.0
+
+
+def test_a_further_field_may_have_a_seabed_block_of_its_own(tmp_path):
+    offset = {**GRAVITY, "seabed": {"offset": 3.0, "cell_factor": 2}}
+    scen = scenario_from_dict(fused(sensors=[DEPTH, offset]))
+    assert scen.seabed is None and scen.fields[1].seabed.offset == 3.0
+    grid = prepare_map(scen)
+    trial = simulate_trial(scen, grid, 0)
+    (field,) = trial.fields
+    assert field.sensed is not None and field.grid.cell_size == 2 * field.sensed.cell_size
+    clean = field.sensed.sample(trial.truth[:, 0], trial.truth[:, 1])
+    assert abs(np.mean(field.measured[:, 0] - clean) - 3.0) < 0.5
+    assert trial.prior_map is None  # the primary field keeps its map
+    _, back = load_exported(export_trials(scen, tmp_path / "seabed.nc", trials=1))
+    assert np.array_equal(back[0].fields[0].grid.values, field.grid.values)
+    assert np.array_equal(back[0].fields[0].measured, field.measured)
