@@ -68,7 +68,16 @@ def scenario(kinds: tuple[str, ...], monkeypatch) -> object:
     return scen, grids[kinds[0]]
 
 
-@pytest.mark.parametrize("spec", ["pmf", "pf", "mpf", "pmf:model=errstate"])
+PF_FUSED_GAP = pytest.mark.xfail(
+    strict=True,
+    reason="the particle filter ends about 36 m off fused (the fused bound about 7 m, pmf 6 m): "
+    "its collapse on a sharp likelihood, as on the EX1811 replay",
+)
+
+
+@pytest.mark.parametrize(
+    "spec", ["pmf", pytest.param("pf", marks=PF_FUSED_GAP), "mpf", "pmf:model=errstate"]
+)
 def test_two_fields_fix_what_neither_fixes_alone(spec, monkeypatch):
     ends = {}
     for kinds in (("depth",), ("gravity",), ("depth", "gravity")):
@@ -80,8 +89,8 @@ def test_two_fields_fix_what_neither_fixes_alone(spec, monkeypatch):
             errors.append(result.error[-1])
         ends[kinds] = float(np.sqrt(np.mean(np.square(errors))))
     fused = ends[("depth", "gravity")]
-    assert fused < 45.0, ends
-    assert fused < 0.6 * min(ends[("depth",)], ends[("gravity",)]), ends
+    assert fused < 40.0, ends
+    assert fused < 0.5 * min(ends[("depth",)], ends[("gravity",)]), ends
 
 
 def test_sitan_uses_the_primary_field_only(monkeypatch):
