@@ -55,6 +55,14 @@ information adds: ``I_k`` is the sum over fields of ``sum_b g g^T / var_b``, eac
 its own map's gradients at its own footprints and its own beams' variance, and every
 bound above is taken on that sum (:func:`trial_information`, :func:`field_information`).
 
+**The common offset as a state.** The default filters estimate one offset per field
+(measured minus map: a tide, a datum, a gravimeter's offset) as a slowly varying state.
+:func:`offset_state_crlb` runs the posterior recursion above on the state augmented with
+those offsets: each ``N(0, std_f^2)`` at the start and gaining ``walk_f * dt`` per step,
+each beam's row ``(g^T H, 1)`` for its own field's offset (:func:`offset_information`,
+:func:`offset_state_bound`). It lies between the known-offset bound (``std -> 0``, no
+walk) and an offset drawn anew per sample (a single beam then tells nothing).
+
 A gravimeter's first-order lag changes none of these bounds. The simulator adds the
 sensor noise and map error *before* the lag (:mod:`geofix.sensors.echosounder`), so the
 lagged readings ``y = L x`` are an invertible, known, lower-triangular linear map ``L``
@@ -277,6 +285,12 @@ def field_information(trial, field, offset_var: float = 0.0, prior: bool = False
     numpy.ndarray
         ``(n, 2, 2)`` information, 1/m^2.
     """
+    gx, gy, var, valid = _field_gradients(trial, field, prior)
+    return sample_information(gx, gy, var, valid=valid, offset_var=offset_var)
+
+
+def _field_gradients(trial, field, prior: bool) -> tuple:
+    """``(gx, gy, var, valid)`` of a further field's beams, as :func:`field_information`."""
     sensed = field.grid if field.sensed is None else field.sensed
     var = np.asarray(field.beam_noise_std, float) ** 2
     read, source = TRUTH_READ, sensed
@@ -287,7 +301,7 @@ def field_information(trial, field, offset_var: float = 0.0, prior: bool = False
     gx, gy = beam_gradients(source, trial.truth, trial.true_heading, field.offsets, read)
     valid = np.isfinite(field.measured) & np.isfinite(gx) & np.isfinite(gy)
     gx, gy = np.where(valid, gx, 0.0), np.where(valid, gy, 0.0)
-    return sample_information(gx, gy, var, valid=valid, offset_var=offset_var)
+    return gx, gy, var, valid
 
 
 def error_state_bound(es, info: np.ndarray, dvl: bool = True) -> np.ndarray:
@@ -445,6 +459,357 @@ def imperfect_map_crlb(trial, grid: Grid, beam_var=None, offset_var=np.inf) -> T
     batch = float(inverse_trace(info[last].sum(axis=0)))
     traces = _bound_traces(trial, info, rw)
     return TrialBound(float(traces[-1]), batch, float(np.mean(traces)), float(rw[-1]))
+
+
+# ------------------------------------------------------------ the offset as a state
+
+
+@dataclass(frozen=True)
+class LinearMotion:
+    """A linear-Gaussian model of the vehicle's error state, the base of a posterior bound.
+
+    Attributes
+    ----------
+    prior_cov : numpy.ndarray
+        ``(d, d)`` prior covariance, state units squared.
+    transitions : numpy.ndarray
+        ``(n - 1, d, d)`` ``F_k``.
+    process_cov : numpy.ndarray
+        ``(n - 1, d, d)`` ``Q_k`` (may be singular), state units squared.
+    position_map : numpy.ndarray
+        ``(2, d)`` ``H``: the position error is ``H x``, metres.
+    extra_rows : numpy.ndarray or None
+        ``(r, d)`` whitened rows of a measurement folded in at every sample (a DVL's
+        velocity), or None.
+    """
+
+    prior_cov: np.ndarray
+    transitions: np.ndarray
+    process_cov: np.ndarray
+    position_map: np.ndarray
+    extra_rows: np.ndarray | None = None
+
+    @property
+    def dim(self) -> int:
+        """Number of states ``d``."""
+        return self.position_map.shape[1]
+
+
+def random_walk_motion(sigma_position) -> LinearMotion:
+    """The random-walk position model of :func:`recursive_bound` as a :class:`LinearMotion`.
+
+    Parameters
+    ----------
+    sigma_position : array_like
+        ``(n,)`` prior per-axis 1-sigma of the INS position error, metres: the prior
+        variance is the first's square (floored at ``1e-6`` m^2), the process variance of
+        each step :func:`process_variances`.
+
+    Returns
+    -------
+    LinearMotion
+        Two states (east, north position error, metres).
+    """
+    sigma = np.asarray(sigma_position, float)
+    eye = np.eye(2)
+    q = process_variances(sigma)
+    return LinearMotion(
+        prior_cov=eye * max(float(sigma[0]) ** 2, MIN_PROCESS_VAR),
+        transitions=np.broadcast_to(eye, (q.size, 2, 2)),
+        process_cov=q[:, None, None] * eye,
+        position_map=eye,
+    )
+
+
+def error_state_motion(es, dvl: bool = True) -> LinearMotion:
+    """The INS error state of :func:`error_state_bound` as a :class:`LinearMotion`.
+
+    Parameters
+    ----------
+    es : ErrorState
+        The linear error model (:func:`geofix.nav.errstate.error_state`).
+    dvl : bool
+        Fold in the DVL velocity measurement when ``es.velocity_map`` is given.
+
+    Returns
+    -------
+    LinearMotion
+        ``es.dim`` states.
+    """
+    rows = None
+    if dvl and es.velocity_map is not None and es.velocity_noise_var > 0:
+        rows = es.velocity_map / np.sqrt(es.velocity_noise_var)
+    return LinearMotion(es.prior_cov, es.transitions, es.process_cov, es.position_map, rows)
+
+
+def offset_information(gx, gy, beam_var, valid=None) -> np.ndarray:
+    """Fisher information of each sample about the position and the field's offset.
+
+    A beam reads ``h(p + r_b) + c + noise`` with ``c`` the field's common offset; its
+    linearised row is ``(g_x, g_y, 1)``, so a sample carries ``sum_b a_b a_b^T / R_b``
+    with ``a_b = (g_x, g_y, 1)``. The upper-left block is
+    :func:`geofix.measurement.sample_information`; its Schur complement on the offset is
+    that function's ``offset_var=inf``.
+
+    Parameters
+    ----------
+    gx, gy : array_like
+        ``(n, b)`` map gradients at the footprints, field units per metre.
+    beam_var : float or array_like
+        Measurement variance, field units squared: a scalar or ``(b,)`` per beam.
+    valid : array_like of bool, optional
+        ``(n, b)``; False for a missing measurement.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, 3, 3)`` information about ``(x, y, c)``: 1/m^2, 1/(m field unit), 1/field
+        unit^2.
+    """
+    gx = np.asarray(gx, float)
+    gy = np.asarray(gy, float)
+    w = np.broadcast_to(1.0 / np.asarray(beam_var, float), gx.shape)
+    if valid is not None:
+        w = np.where(valid, w, 0.0)
+    a = np.stack([gx, gy, np.ones_like(gx)], axis=-1)
+    return np.einsum("nb,nbi,nbj->nij", w, a, a)
+
+
+def offset_state_bound(motion: LinearMotion, info, offset_var, offset_process_var) -> np.ndarray:
+    """Posterior CRLB of a state augmented with one random-walk offset per field.
+
+    The state is the motion's ``x`` (``d``) and the fields' offsets ``c_f`` (``F``), with
+    ``c_f ~ N(0, offset_var_f)`` at the first sample, independent of ``x``, and gaining
+    ``offset_process_var[k - 1, f]`` at step ``k``. Each beam of field ``f`` is a row
+    ``(g^T H, e_f)``. The recursion is :func:`error_state_bound`'s covariance form
+    (Tichavský et al. 1998) on the augmented state; a zero prior and no walk leave the
+    offsets known and the bound is that of the motion alone.
+
+    Parameters
+    ----------
+    motion : LinearMotion
+        The vehicle's error state.
+    info : array_like
+        ``(F, n, 3, 3)`` every field's :func:`offset_information` per sample.
+    offset_var : array_like
+        ``(F,)`` prior variance of every field's offset, its units squared (0: known).
+    offset_process_var : array_like
+        ``(n - 1, F)`` variance each offset gains per step, its units squared.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(n, d + F, d + F)`` covariance bounds; the position block is
+        ``H P[:d, :d] H^T``.
+    """
+    info = np.asarray(info, float)
+    fields, n = info.shape[0], info.shape[1]
+    d = motion.dim
+    q_offset = np.asarray(offset_process_var, float).reshape(max(n - 1, 0), fields)
+    p = np.zeros((d + fields, d + fields))
+    p[:d, :d] = motion.prior_cov
+    p[d:, d:] = np.diag(np.asarray(offset_var, float).reshape(fields))
+    maps = []
+    for f in range(fields):
+        m = np.zeros((3, d + fields))
+        m[:2, :d] = motion.position_map
+        m[2, d + f] = 1.0
+        maps.append(m)
+    extra = None
+    if motion.extra_rows is not None:
+        extra = np.hstack([motion.extra_rows, np.zeros((motion.extra_rows.shape[0], fields))])
+    out = np.empty((n, d + fields, d + fields))
+    for k in range(n):
+        if k:
+            p = _offset_predict(p, motion, k - 1, q_offset[k - 1])
+        rows = [measurement_rows(info[f, k], maps[f]) for f in range(fields)]
+        if extra is not None:
+            rows.append(extra)
+        p = information_update(p, np.vstack(rows)) if rows else p
+        out[k] = p
+    return out
+
+
+def _offset_predict(p: np.ndarray, motion: LinearMotion, step: int, q_offset) -> np.ndarray:
+    """``A P A^T + Q`` of the augmented state: the motion's ``F``, the offsets unchanged."""
+    d = motion.dim
+    f = motion.transitions[step]
+    out = p.copy()
+    out[:d, :d] = f @ p[:d, :d] @ f.T + motion.process_cov[step]
+    out[:d, d:] = f @ p[:d, d:]
+    out[d:, :d] = out[:d, d:].T
+    out[d:, d:] += np.diag(q_offset)
+    return out
+
+
+def trial_offset_information(trial, grid: Grid, beam_var=None, prior_map: bool = False):
+    """Every field's :func:`offset_information` along a trial's true track.
+
+    Parameters
+    ----------
+    trial : Trial
+        The mission, its primary field first, then ``trial.fields``.
+    grid : Grid
+        The map the primary field's readings were drawn from (the seabed).
+    beam_var : float or array_like, optional
+        The primary field's measurement variance, its units squared; default
+        :func:`trial_beam_variance`.
+    prior_map : bool
+        The problem of a vehicle with the prior maps (as :func:`imperfect_map_crlb`): every
+        field's prior's gradients (bilinear) and its map error's variance at the track
+        added to its beams'; False: the gradients of the fields the sensors read (as
+        :func:`trial_crlb`).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(F, n, 3, 3)`` information about ``(x, y, c_f)``.
+    """
+    if beam_var is None:
+        beam_var = trial_beam_variance(trial)
+    var = np.asarray(beam_var, float)
+    source, read = grid, TRUTH_READ
+    if prior_map:
+        source, read = _prior_of(trial, grid), "bilinear"
+        var = var + map_error_variance_at_track(trial, grid, source)
+    gx, gy = beam_gradients(source, trial.truth, trial.true_heading, trial.offsets, read)
+    valid = np.isfinite(trial.measured)
+    if prior_map:
+        valid = valid & np.isfinite(gx) & np.isfinite(gy)
+        gx, gy = np.where(valid, gx, 0.0), np.where(valid, gy, 0.0)
+    out = [offset_information(gx, gy, np.maximum(var, 1e-12), valid)]
+    for field in getattr(trial, "fields", ()):
+        out.append(offset_information(*_field_gradients(trial, field, prior_map)))
+    return np.stack(out)
+
+
+def _prior_of(trial, grid: Grid) -> Grid:
+    """The primary field's prior map: the trial's ``prior_map``, else the seabed ``grid``."""
+    prior = getattr(trial, "prior_map", None)
+    return grid if prior is None else prior
+
+
+def trial_offset_model(trial, grid: Grid, offset_std=None, offset_walk=None) -> tuple:
+    """Every field's offset prior 1-sigma and walk rate, the filters' defaults if not given.
+
+    Parameters
+    ----------
+    trial : Trial
+        The mission: its primary field, then ``trial.fields``.
+    grid : Grid
+        The primary field's seabed (its prior map is ``trial.prior_map`` when set).
+    offset_std : float or array_like, optional
+        Prior 1-sigma, map units: one for every field or ``(F,)``; None: each field's
+        :func:`geofix.filters.nuisance.default_offset_std` of its prior map.
+    offset_walk : float or array_like, optional
+        Variance gained per second, map units squared per second: one for every field or
+        ``(F,)``; None: the filters' default ``depth_bias_walk``
+        (:class:`geofix.filters.loop.FilterSettings`).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(std (F,), walk (F,))``.
+    """
+    from geofix.filters.loop import FilterSettings
+    from geofix.filters.nuisance import default_offset_std
+
+    priors = [_prior_of(trial, grid)] + [f.grid for f in getattr(trial, "fields", ())]
+    count = len(priors)
+    if offset_std is None:
+        std = np.array([default_offset_std(g) for g in priors], float)
+    else:
+        std = np.broadcast_to(np.asarray(offset_std, float), (count,)).copy()
+    if offset_walk is None:
+        offset_walk = FilterSettings().depth_bias_walk
+    walk = np.broadcast_to(np.asarray(offset_walk, float), (count,)).copy()
+    return std, walk
+
+
+def offset_state_crlb(
+    trial,
+    grid: Grid,
+    offset_std=None,
+    offset_walk=None,
+    prior_map: bool = False,
+    beam_var=None,
+) -> TrialBound:
+    """The bounds of :func:`trial_crlb` with every field's common offset a random-walk state.
+
+    The default filters estimate one offset per field (measured minus map) as a slowly
+    varying state (:class:`geofix.filters.nuisance.CommonOffset`). Their bound is the
+    posterior CRLB of the state augmented with those offsets
+    (:func:`offset_state_bound`): each offset ``N(0, offset_std^2)`` at the start, gaining
+    ``offset_walk * dt`` per step, and each beam's row ``(g^T H, 1)`` for its own field's
+    offset. It lies between the known-offset bound (:func:`trial_crlb`, the limit
+    ``offset_std -> 0`` with no walk) and the bound of an offset drawn anew per sample
+    (``offset_var=inf`` of :func:`imperfect_map_crlb`, the limit of a fast walk): a
+    profile of samples on different gradients tells the offset apart from the position,
+    one sample of a single beam does not.
+
+    Parameters
+    ----------
+    trial : Trial
+        The mission (true track, headings, beams, readings, ``sigma_position``,
+        ``ins_model``, ``times``, further fields).
+    grid : Grid
+        The map the primary field's readings were drawn from.
+    offset_std : float or array_like, optional
+        Every field's offset prior 1-sigma, map units (see :func:`trial_offset_model`;
+        default the filters' own, from each field's prior map).
+    offset_walk : float or array_like, optional
+        Every field's offset walk, map units squared per second (default the filters').
+    prior_map : bool
+        The problem of a vehicle with the prior maps (the information of
+        :func:`imperfect_map_crlb`); False: the sensed fields' (:func:`trial_crlb`).
+    beam_var : float or array_like, optional
+        The primary field's measurement variance, its units squared.
+
+    Returns
+    -------
+    TrialBound
+        ``trace`` of the position bounds, m^2: the error-state one (the random-walk one
+        without an INS model), the random-walk one, and the batch one of the last leg
+        (one constant offset per field with the same prior, a rigid translation).
+    """
+    info = trial_offset_information(trial, grid, beam_var, prior_map)
+    std, walk = trial_offset_model(trial, grid, offset_std, offset_walk)
+    dt = np.clip(np.diff(np.asarray(trial.times, float)), 0.0, None)
+    q_offset = dt[:, None] * walk[None, :]
+    rw_motion = random_walk_motion(trial.sigma_position)
+    rw = _position_traces(rw_motion, offset_state_bound(rw_motion, info, std**2, q_offset))
+    es = trial_error_state(trial)
+    traces = rw
+    if es is not None:
+        motion = error_state_motion(es)
+        traces = _position_traces(motion, offset_state_bound(motion, info, std**2, q_offset))
+    batch = _offset_batch_trace(info[:, trial.leg_slices()[-1]], std**2)
+    return TrialBound(float(traces[-1]), batch, float(np.mean(traces)), float(rw[-1]))
+
+
+def _position_traces(motion: LinearMotion, cov: np.ndarray) -> np.ndarray:
+    """``(n,)`` ``trace(H P H^T)`` of augmented covariances, m^2."""
+    d, h = motion.dim, motion.position_map
+    block = cov[:, :d, :d]
+    return np.einsum("ij,njk,ik->n", h, block, h)
+
+
+def _offset_batch_trace(info: np.ndarray, offset_var) -> float:
+    """``trace`` of the batch position bound with one constant offset per field, m^2.
+
+    ``info`` is ``(F, m, 3, 3)`` over the leg's samples; each offset has the prior
+    variance ``offset_var`` (0: known), and is eliminated by its Schur complement.
+    """
+    total = info.sum(axis=1)
+    j = total[:, :2, :2].sum(axis=0)
+    for f, var in enumerate(np.asarray(offset_var, float)):
+        if var <= 0:
+            continue
+        u = total[f, :2, 2]
+        s = total[f, 2, 2] + (0.0 if np.isinf(var) else 1.0 / var)
+        if s > 0:
+            j = j - np.outer(u, u) / s
+    return float(inverse_trace(j))
 
 
 def _random_walk_traces(trial, info: np.ndarray) -> np.ndarray:
