@@ -9,6 +9,18 @@ radians)::
     est = nav.measure(t, beams)                       # (b, 3) across_m, along_m, value
     est.position, est.covariance, est.mle, est.status, est.nis
 
+**Several fields.** A vehicle with a gravimeter (or a magnetometer) beside its
+echosounder gives the navigator the further fields' maps, ``field_grids`` (the
+``grid`` is the primary field's), and each ping the further fields' readings,
+``measure(..., fields=[{"kind": "gravity", "beams": [[0, 0, 12.5]], "noise_var": 1.0}])``.
+The filter folds every field of a ping in one update (the product of the fields'
+likelihoods, :class:`geofix.filters.loop.FilterStepper`), each field with its own
+common offset, residual scale and representation share; a field missing from a ping is
+not weighed at it. The NIS of the gate and of the health rules is the primary field's
+alone (NaN for a ping with no valid primary beam). Only a filter that weighs several
+fields (``pmf``, ``pf``, ``mpf``) takes ``field_grids``; without them every number is
+the one-field navigator's.
+
 The method is any registered recursive filter by name or spec (``"pmf"``, ``"pf"``,
 ``"sitan"``, ``"pmf:points=41"``, and every filter added to the registry later on the
 same per-step protocol). The filters on the INS error state (``"mpf"``,
@@ -72,11 +84,22 @@ from geofix.navigator.intake import (
 )
 from geofix.navigator.offset import OffsetEstimator
 from geofix.navigator.settings import NavigatorSettings
-from geofix.problem import Matcher, MatchProblem
+from geofix.problem import Matcher, MatchField, MatchProblem
+
+FIELD_SENSORS = {"depth": "singlebeam", "gravity": "gravimeter", "magnetic": "magnetometer"}
+"""The sensor type of a further field of each map kind (its placeholder start reading)."""
+FIELD_PING_KEYS = ("kind", "beams", "noise_var")
+"""The keys of one further field's reading of a ping (:meth:`Navigator.measure`)."""
 
 
 def start_problem(
-    grid: Grid, t: float, position, sigma_m: float, heading: float, ins_model=None
+    grid: Grid,
+    t: float,
+    position,
+    sigma_m: float,
+    heading: float,
+    ins_model=None,
+    field_grids: tuple[Grid, ...] = (),
 ) -> MatchProblem:
     """A one-sample :class:`MatchProblem` carrying a prior for ``filter.initialize``.
 
@@ -101,12 +124,25 @@ def start_problem(
         Heading, radians clockwise from north.
     ins_model : InsErrorModel, optional
         The INS error model of a filter on the INS error state.
+    field_grids : tuple of Grid
+        The further fields' maps: each a :class:`~geofix.problem.MatchField` of one
+        placeholder reading, so that the filter loop keeps one set of nuisance states
+        per field.
 
     Returns
     -------
     MatchProblem
         One sample at ``t``.
     """
+    fields = tuple(
+        MatchField(
+            grid=g,
+            measured=np.zeros((1, 1)),
+            offsets=np.zeros((1, 2)),
+            sensor=FIELD_SENSORS.get(g.kind, "gravimeter"),
+        )
+        for g in field_grids
+    )
     if ins_model is not None:
         ins_model = replace(ins_model, initial_offset=(0.0, 0.0), initial_std=float(sigma_m))
     return MatchProblem(
@@ -118,6 +154,7 @@ def start_problem(
         sigma_position=np.array([float(sigma_m)]),
         times=np.array([float(t)]),
         ins_model=ins_model,
+        fields=fields,
     )
 
 
@@ -149,20 +186,36 @@ class Navigator:
         The INS error model (:mod:`geofix.nav.errstate`): required by a filter on the INS
         error state (``mpf``, ``pmf:model=errstate``), ignored by the others; see
         :func:`start_problem` for its prior.
+    field_grids : sequence of Grid, optional
+        The further fields' maps (a gravity anomaly, a magnetic anomaly beside a depth
+        map), each of a kind of its own other than ``grid``'s, in the same metric frame
+        (their cells need not match). Each ping may then carry their readings
+        (:meth:`measure`'s ``fields``). Their readings are taken as given (no lag undone,
+        no per-cell map error added); the filter must weigh several fields (``pmf``,
+        ``pf``, ``mpf``).
 
     Raises
     ------
     ConfigError
-        Unknown method or setting, a batch matcher instead of a recursive filter, or a
-        filter that needs an INS error model without one.
+        Unknown method or setting, a batch matcher instead of a recursive filter, a
+        filter that needs an INS error model without one, or further maps a filter does
+        not weigh, of a repeated kind or not maps.
     MemoryBudgetError
         The filter would exceed the memory budget (:mod:`geofix.filters.sizing`).
     """
 
     def __init__(
-        self, grid: Grid, method="pmf", settings=None, seed=0, map_error=None, ins_model=None
+        self,
+        grid: Grid,
+        method="pmf",
+        settings=None,
+        seed=0,
+        map_error=None,
+        ins_model=None,
+        field_grids=None,
     ) -> None:
         filt = _recursive_filter(method)
+        field_grids = _field_grids(grid, field_grids, filt, method)
         if filt.needs_ins_model and ins_model is None:
             raise ConfigError(
                 f"navigator: method {method if isinstance(method, str) else filt.name!r} "
@@ -179,6 +232,9 @@ class Navigator:
         self.map_error = map_error
         self.ins_model = ins_model
         self._intake = PingIntake(self.settings)
+        self.field_grids: tuple[Grid, ...] = field_grids
+        # a further field's readings: levelled as the primary's, no lag undone
+        self._field_intake = PingIntake(replace(self.settings, lag_s=0.0))
         self._health = Health(self.settings, self._stepper.grid)
         self._offset = OffsetEstimator(self._stepper)
         self._pose: tuple[float, np.ndarray, float] | None = None  # (t, position (2,), heading)
@@ -217,6 +273,11 @@ class Navigator:
         """The residual scale's factor on the declared measurement variance (1: none)."""
         return self._stepper.noise_factor
 
+    @property
+    def field_kinds(self) -> tuple[str, ...]:
+        """The kinds of the further fields' maps, in order (``()``: the one field)."""
+        return tuple(g.kind for g in self.field_grids)
+
     # ------------------------------------------------------------------ the two steps
     def start(self, problem: MatchProblem) -> None:
         """Initialise from a problem's prior (its first sample), as a campaign trial does.
@@ -252,15 +313,21 @@ class Navigator:
         self._health.moved(motion.process_var)
         self._last = None
 
-    def update(self, obs: Observation, t: float | None = None) -> Estimate:
+    def update(self, obs: Observation, t: float | None = None, fields=()) -> Estimate:
         """Fold in one ping (gated by its NIS), update the status, re-initialise if lost.
 
         Parameters
         ----------
         obs : Observation
-            The ping, placed at the current pose.
+            The ping, placed at the current pose (the primary field's).
         t : float, optional
             Its time, seconds (default: the time of the last pose).
+        fields : sequence of Observation or None
+            One per further field (:attr:`field_grids`, in order): its reading at the
+            same pose, or None where the ping has none (``()``: none at all). The ping is
+            taken when the primary or a further field has its minimum of valid beams; a
+            primary short of it is left out of the update. The gate judges the
+            primary's NIS alone and refuses the whole ping.
 
         Returns
         -------
@@ -277,12 +344,16 @@ class Navigator:
         self._pings += 1
         s = self.settings
         nis = float("nan")
+        further = self._weigh_fields(fields, t) if self.field_grids else []
         relative, obs = self._stepper.weigh(obs, t)
         accepted = int(np.isfinite(obs.values).sum()) >= min_beams(s, obs.values.size)
+        primary = accepted
+        if any(ok for *_, ok in further):
+            accepted = True
         prior = self.filter.estimate(self.state) if accepted else None
         judges_nis = s.converge_nis_max is not None or s.converge_nis_min is not None
         wants_nis = s.gate_nis is not None or s.nis_window > 0
-        if prior is not None and (wants_nis or (s.report_status and judges_nis)):
+        if primary and prior is not None and (wants_nis or (s.report_status and judges_nis)):
             mean, cov = prior
             nis = innovation_nis(self.grid, mean, cov, obs)
             gated = self._accepted_count > 0
@@ -300,14 +371,22 @@ class Navigator:
             and self._health.small(prior[1])
             and self._health.resolved(self.state)
         )
-        if accepted:
+        if accepted and any(ok for *_, ok in further):
+            accepted = self._fold_fields(obs if primary else _blank(obs), further)
+            self._rejected += int(not accepted)
+        elif accepted:
             accepted = self._stepper.fold(obs)
             self._rejected += int(not accepted)  # a step that left a non-finite estimate
         if accepted:
             self._accepted_count += 1
             self._t_accepted = t
-            self._offset.learn(relative, obs, prior)
-        beams = int(np.isfinite(obs.values).sum())
+            if primary:
+                self._offset.learn(relative, obs, prior)
+            for stepper, rel, weighed, ok in further:
+                stepper.state = self.state
+                if ok:
+                    stepper.learn(rel, weighed, prior, settled=self._offset.settled)
+        beams = int(np.isfinite(obs.values).sum()) if primary else 0
         estimate = self._describe(t, nis, accepted, judged, beams)
         self._offset.judged(estimate.status)
         if accepted and s.report_status:
@@ -326,6 +405,42 @@ class Navigator:
             estimate = self._fallback(estimate)
         self._last = estimate
         return estimate
+
+    def _weigh_fields(self, fields, t: float) -> list[tuple]:
+        """``(stepper, relative, weighed, usable)`` of every further field of a ping.
+
+        A field the ping has no reading of gets a one-beam placeholder of NaN (not weighed
+        by the filter, its nuisance states untouched).
+        """
+        fields = tuple(fields) if fields is not None else ()
+        if len(fields) not in (0, len(self.field_grids)):
+            raise InputError(
+                f"ping: {len(fields)} further field readings, the navigator has "
+                f"{len(self.field_grids)} further maps"
+            )
+        out = []
+        steppers = self._stepper.fields
+        for i, stepper in enumerate(steppers):
+            obs = fields[i] if fields else None
+            if obs is None:
+                out.append((stepper, None, None, False))
+                continue
+            stepper.state = self.state
+            relative, weighed = stepper.weigh(obs, t)
+            valid = int(np.isfinite(weighed.values).sum())
+            usable = valid >= min_beams(self.settings, weighed.values.size)
+            out.append((stepper, relative, weighed, usable))
+        return out
+
+    def _fold_fields(self, obs: Observation, further: list[tuple]) -> bool:
+        """Fold the primary ping and every further field's in one update; folded or not."""
+        extra = []
+        for stepper, _, weighed, usable in further:
+            if usable:
+                extra.append((stepper._for_filter(weighed), stepper.grid))
+            else:
+                extra.append((_placeholder(obs), stepper.grid))
+        return self._stepper.fold(obs, tuple(extra))
 
     # ------------------------------------------------------------------ raw inputs
     def init(self, t: float, position, sigma_m: float, heading: float = 0.0) -> Estimate:
@@ -359,7 +474,9 @@ class Navigator:
         if sigma_m <= 0:
             raise InputError(f"init: sigma_m must be positive, got {sigma_m:g}")
         check_start_box(self.grid, position, sigma_m, self.settings.min_start_share)
-        prior = start_problem(self.grid, t, position, sigma_m, heading, self.ins_model)
+        prior = start_problem(
+            self.grid, t, position, sigma_m, heading, self.ins_model, self.field_grids
+        )
         try:
             self._stepper.start(prior)
         except MatchError as exc:
@@ -415,7 +532,9 @@ class Navigator:
             self._last = self._lose(self._describe(t, float("nan"), False), t)
         return self.estimate()
 
-    def measure(self, t: float, beams, noise_var=None, roll=None, pitch=None) -> Estimate:
+    def measure(
+        self, t: float, beams, noise_var=None, roll=None, pitch=None, fields=None
+    ) -> Estimate:
         """A ping: rows ``(across_m, along_m, value)`` or ``(across_m, along_m, down_m, value)``.
 
         Values may be NaN (missing beam); offsets must be finite. The ping is placed with
@@ -437,6 +556,13 @@ class Navigator:
             Vehicle attitude at the ping, radians (roll positive starboard down, pitch
             positive bow up; :mod:`geofix.conventions`); None is 0 for body-frame beams.
             They level the body-frame beams and the mounting offset.
+        fields : sequence of mapping, optional
+            The further fields' readings of the ping, each ``{"kind": KIND, "beams":
+            rows, "noise_var": var}``: ``KIND`` one of :attr:`field_kinds` (each at most
+            once), ``rows`` as ``beams`` (in that map's units, NaN: missing) and ``var``
+            the reading's measurement variance, that map's units squared (a number or
+            one per beam). A further field left out is not weighed at this ping. The
+            primary ``beams`` may then be all NaN (a ping of the further fields alone).
 
         Returns
         -------
@@ -447,7 +573,8 @@ class Navigator:
         ------
         InputError
             Before :meth:`init`, out of order, far from the last pose, malformed beams,
-            or a roll / pitch not finite or beyond +-90 degrees.
+            a roll / pitch not finite or beyond +-90 degrees, or a malformed further
+            field (an unknown or repeated kind, an unknown key, no ``noise_var``).
         """
         t_pose, position, heading = self._require_started()
         t = finite(t, "t")
@@ -459,13 +586,52 @@ class Navigator:
                 f"ping at t = {t:g} s is {abs(t - t_pose):.3g} s from the last nav "
                 f"(at most {gap:g} s)"
             )
+        further = self._field_readings(t, fields, roll, pitch, position, heading)
         offsets, values, var = self._intake.read(t, beams, noise_var, roll, pitch)
         if self.map_error is not None:
             mean, _ = self.filter.estimate(self.state)
             var = var + map_error_variance(self.map_error, mean, heading, offsets)
         obs = Observation(values, position, heading, offsets, var, self._pings)
         self._t_last = t
-        return self.update(obs, t)
+        if further is None:
+            return self.update(obs, t)
+        return self.update(obs, t, further)
+
+    def _field_readings(self, t: float, fields, roll, pitch, position, heading):
+        """One Observation (or None) per further field of a ping's ``fields``, checked.
+
+        None when the ping carries no ``fields`` at all.
+        """
+        if fields is None:
+            return None
+        if isinstance(fields, dict | str | bytes) or not hasattr(fields, "__iter__"):
+            raise InputError("ping: fields must be a list of {kind, beams, noise_var}")
+        readings: list[Observation | None] = [None] * len(self.field_grids)
+        kinds = self.field_kinds
+        for entry in fields:
+            if not isinstance(entry, dict):
+                raise InputError("ping: each of fields must be an object {kind, beams, noise_var}")
+            unknown = sorted(set(entry) - set(FIELD_PING_KEYS))
+            if unknown:
+                shown = ", ".join(str(k) for k in unknown)[:80]
+                raise InputError(f"ping: a field has unknown key(s) {shown}")
+            kind = entry.get("kind")
+            if kind not in kinds:
+                known = ", ".join(kinds) if kinds else "none: one map"
+                raise InputError(f"ping: field kind {str(kind)[:40]!r} has no map ({known})")
+            i = kinds.index(kind)
+            if readings[i] is not None:
+                raise InputError(f"ping: field {kind} given twice")
+            if entry.get("noise_var") is None:
+                raise InputError(f"ping: field {kind} needs its noise_var ({kind} map units^2)")
+            try:
+                offsets, values, var = self._field_intake.read(
+                    t, entry.get("beams"), entry["noise_var"], roll, pitch
+                )
+            except InputError as exc:
+                raise InputError(f"{kind} field {exc}") from None
+            readings[i] = Observation(values, position, heading, offsets, var, self._pings)
+        return readings
 
     def estimate(self) -> Estimate:
         """The current estimate (the last one returned, or one of the current state).
@@ -611,7 +777,15 @@ class Navigator:
         sigma = max(lost.sigma_m, self._health.prior_sigma)
         try:
             self._stepper.start(
-                start_problem(self.grid, t, lost.position, sigma, heading, self.ins_model)
+                start_problem(
+                    self.grid,
+                    t,
+                    lost.position,
+                    sigma,
+                    heading,
+                    self.ins_model,
+                    self.field_grids,
+                )
             )
         except MatchError:
             return lost  # the restart box is off the map: keep the old posterior, stay lost
@@ -626,6 +800,45 @@ class Navigator:
         if self.state is None or self._pose is None:
             raise InputError("no init yet: send init (t, x, y, sigma_m) first")
         return self._pose
+
+
+def _field_grids(grid: Grid, field_grids, filt, method) -> tuple[Grid, ...]:
+    """The further fields' maps, checked (ConfigError naming the problem)."""
+    if field_grids is None:
+        return ()
+    if isinstance(field_grids, Grid):
+        field_grids = (field_grids,)
+    field_grids = tuple(field_grids)
+    if not field_grids:
+        return ()
+    if not all(isinstance(g, Grid) for g in field_grids):
+        raise ConfigError("navigator: field_grids must be maps (Grid)")
+    kinds = [grid.kind, *(g.kind for g in field_grids)]
+    repeated = sorted({k for k in kinds if kinds.count(k) > 1})
+    if repeated:
+        raise ConfigError(
+            f"navigator: one map per field kind; {', '.join(repeated)} is given twice "
+            f"(maps of kinds {', '.join(kinds)})"
+        )
+    if not getattr(filt, "fuses_fields", False):
+        label = method if isinstance(method, str) else filt.name
+        raise ConfigError(
+            f"navigator: method {label!r} weighs one field only; several fields need a "
+            "filter that fuses them (pmf, pf, mpf)"
+        )
+    return field_grids
+
+
+def _blank(obs: Observation) -> Observation:
+    """``obs`` with every value missing (a primary short of its minimum of beams)."""
+    return replace(obs, values=np.full_like(np.asarray(obs.values, dtype=float), np.nan))
+
+
+def _placeholder(obs: Observation) -> Observation:
+    """A one-beam reading of NaN at ``obs``'s pose: a field the ping has no value of."""
+    return Observation(
+        np.full(1, np.nan), obs.indicated, obs.heading, np.zeros((1, 2)), 1.0, obs.index
+    )
 
 
 def _parse_method(method):
