@@ -588,7 +588,14 @@ def _print_replay(summary: dict) -> None:
 
 @app.command("serve")
 def serve_command(
-    map_path: Annotated[str, typer.Option("--map", help="Map file or builtin:NAME.")],
+    map_path: Annotated[
+        list[str],
+        typer.Option(
+            "--map",
+            help="Map file or builtin:NAME; repeat it for a further field's map "
+            "(a gravity or magnetic map beside the depth map: the first is the primary).",
+        ),
+    ],
     port: Annotated[int, typer.Option(help="TCP port.")],
     method: Annotated[str, typer.Option("--method", "-m", help="Recursive method spec.")] = "pmf",
     host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
@@ -632,7 +639,13 @@ def serve_command(
     def go():
         from geofix.maps.gridding import load_map_error
         from geofix.maps.io import load_grid
-        from geofix.replay import check_online_method, check_seed, check_settings, load_ins_model
+        from geofix.replay import (
+            check_online_method,
+            check_seed,
+            check_settings,
+            load_field_maps,
+            load_ins_model,
+        )
         from geofix.server import Session, serve
         from geofix.server_limits import ServerLimits
 
@@ -640,22 +653,38 @@ def serve_command(
         check_seed(seed)
         check_settings({} if noise_std is None else {"noise_std": noise_std})
         check_online_method(method, "serve")
-        grid = load_grid(map_path, variable=variable, resample_m=resample_m)
-        error = None if map_path.startswith("builtin:") else load_map_error(map_path)
+        primary, *further = map_path
+        grid = load_grid(primary, variable=variable, resample_m=resample_m)
+        error = None if primary.startswith("builtin:") else load_map_error(primary)
+        field_grids = load_field_maps(further, grid)
         settings = {}
         if noise_std is not None:
             settings["noise_std"] = noise_std
         if beams is not None:
             settings["max_update_beams"] = beams
         ins_model = None if ins is None else load_ins_model(ins)
-        Session(grid, method, settings, seed, error, ins_model).close()  # refuse early
+        # refuse early
+        Session(grid, method, settings, seed, error, ins_model, field_grids=field_grids).close()
+        maps = " + ".join(repr(g) for g in (grid, *field_grids))
 
         def announce(bound_host: str, bound_port: int) -> None:  # once listening: one line
             _print_line(
-                "serving", f"{grid!r} with {method} on {bound_host}:{bound_port} (Ctrl-C stops)"
+                "serving", f"{maps} with {method} on {bound_host}:{bound_port} (Ctrl-C stops)"
             )
 
-        serve(grid, method, host, port, settings, seed, error, ins_model, limits, announce=announce)
+        serve(
+            grid,
+            method,
+            host,
+            port,
+            settings,
+            seed,
+            error,
+            ins_model,
+            limits,
+            announce=announce,
+            field_grids=field_grids,
+        )
 
     try:
         _guarded(go, "server stopped")

@@ -6,6 +6,12 @@
 ...     reply = nav.ping(t=1.0, beams=[[-50.0, 0.0, -1203.4], [50.0, 0.0, -1199.8]])
 ...     reply["x"], reply["y"], reply["cov"], reply["status"]
 
+With a gravimeter beside the echosounder (a server started with a gravity map too), a
+ping carries its readings as ``fields``::
+
+    nav.ping(t=2.0, beams=[[0.0, 0.0, -1201.0]],
+             fields=[{"kind": "gravity", "beams": [[0.0, 0.0, 23.4]], "noise_var": 0.25}])
+
 Every method sends one request and returns its one reply as a dict; a reply with
 ``"ok": false`` raises :class:`ServerError` unless ``check=False``. Floats are sent with
 Python's shortest exact representation, so the server sees the very numbers given.
@@ -109,7 +115,9 @@ class Client:
             raise ServerError(str(reply.get("error")))
         return reply
 
-    def init(self, t: float, x: float, y: float, sigma_m: float, heading_deg=None, **kw):
+    def init(
+        self, t: float, x: float, y: float, sigma_m: float, heading_deg=None, fields=None, **kw
+    ):
         """``init``: start the navigator at ``(x, y)`` metres with a prior ``sigma_m``.
 
         Parameters
@@ -122,6 +130,9 @@ class Client:
             1-sigma of the initial position, metres.
         heading_deg : float, optional
             Heading, degrees clockwise from north (the server assumes 0 without it).
+        fields : list of str, optional
+            The kinds of the server's further maps this connection weighs (``[]``: the
+            primary map alone; the server's every further map without it).
         check : bool, optional
             Keyword; ``False`` returns an ``"ok": false`` reply instead of raising.
 
@@ -139,6 +150,8 @@ class Client:
         msg["sigma_m"] = float(sigma_m)
         if heading_deg is not None:
             msg["heading_deg"] = float(heading_deg)
+        if fields is not None:
+            msg["fields"] = [str(kind) for kind in fields]
         return self.request(msg, **kw)
 
     def nav(self, t: float, x: float, y: float, heading_deg: float, **kw) -> dict:
@@ -169,7 +182,7 @@ class Client:
         msg["heading_deg"] = float(heading_deg)
         return self.request(msg, **kw)
 
-    def ping(self, t: float, beams, roll_deg=None, pitch_deg=None, **kw) -> dict:
+    def ping(self, t: float, beams, roll_deg=None, pitch_deg=None, fields=None, **kw) -> dict:
         """``ping``: level beams ``(b, 3)``, or body-frame ``(b, 4)`` with the attitude.
 
         Parameters
@@ -182,6 +195,10 @@ class Client:
             units; a NaN value (missing beam) goes as null.
         roll_deg, pitch_deg : float, optional
             Vehicle attitude, degrees.
+        fields : list of dict, optional
+            The further fields' readings of the ping, each ``{"kind": KIND, "beams":
+            rows, "noise_var": var}`` (rows as ``beams``, in that map's units; ``var``
+            that map's units squared, a number or one per beam).
         check : bool, optional
             Keyword; ``False`` returns an ``"ok": false`` reply instead of raising.
 
@@ -197,7 +214,7 @@ class Client:
         ServerError
             The server refused the request (with ``check``) or the connection failed.
         """
-        message = ping_message(t, beams, roll_deg, pitch_deg, as_array=True)
+        message = ping_message(t, beams, roll_deg, pitch_deg, as_array=True, fields=fields)
         # orjson writes the array itself (NaN as null), ten times faster than json on
         # hundreds of beams; ping_message has refused every other non-finite number.
         line = orjson.dumps(message, option=orjson.OPT_SERIALIZE_NUMPY)
@@ -236,7 +253,9 @@ class Client:
         return self.request(message, **kw)
 
 
-def ping_message(t: float, beams, roll_deg=None, pitch_deg=None, as_array=False) -> dict:
+def ping_message(
+    t: float, beams, roll_deg=None, pitch_deg=None, as_array=False, fields=None
+) -> dict:
     """The ``ping`` request for beams ``(b, 3)`` or ``(b, 4)`` (NaN values become null).
 
     Parameters
@@ -252,6 +271,9 @@ def ping_message(t: float, beams, roll_deg=None, pitch_deg=None, as_array=False)
         Keep the beams a C-contiguous float64 array (NaN values kept) for
         ``orjson.dumps(..., option=orjson.OPT_SERIALIZE_NUMPY)``, which writes NaN as
         null; otherwise nested lists with NaN values as None.
+    fields : list of dict, optional
+        The further fields' readings, each ``{"kind", "beams", "noise_var"}``: their
+        beams go as ``beams`` do, ``noise_var`` as a number or a list (map units squared).
 
     Returns
     -------
@@ -261,30 +283,49 @@ def ping_message(t: float, beams, roll_deg=None, pitch_deg=None, as_array=False)
     Raises
     ------
     ValueError
-        Beams of another shape, or a non-finite time, offset or attitude.
+        Beams of another shape, or a non-finite time, offset or attitude (of any field).
     """
+    rows = _rows(beams, as_array)
+    attitude = {
+        k: v for k, v in (("roll_deg", roll_deg), ("pitch_deg", pitch_deg)) if v is not None
+    }
+    numbers = [float(t), *(float(v) for v in attitude.values())]
+    if not all(map(math.isfinite, numbers)):
+        raise ValueError("ping: t, the attitude and the beam offsets must be finite")
+    message = {
+        "type": "ping",
+        "t": float(t),
+        "beams": rows,
+        **{k: float(v) for k, v in attitude.items()},
+    }
+    if fields is not None:
+        message["fields"] = [_field(entry, as_array) for entry in fields]
+    return message
+
+
+def _field(entry: dict, as_array: bool) -> dict:
+    """One further field's reading as the request carries it."""
+    if not isinstance(entry, dict) or not {"kind", "beams", "noise_var"} <= set(entry):
+        raise ValueError("ping: each field must be a dict with kind, beams and noise_var")
+    var = entry["noise_var"]
+    var = float(var) if np.ndim(var) == 0 else [float(v) for v in np.ravel(var)]
+    return {**entry, "beams": _rows(entry["beams"], as_array), "noise_var": var}
+
+
+def _rows(beams, as_array: bool):
+    """Beams ``(b, 3)`` or ``(b, 4)`` as the request carries them (NaN values: null)."""
     array = np.asarray(beams, dtype=float)
     if array.ndim != 2 or array.shape[1] not in (3, 4):
         raise ValueError(
             f"ping: beams must be (b, 3) across_m, along_m, value or (b, 4) across_m, "
             f"along_m, down_m, value; got {array.shape}"
         )
-    attitude = {
-        k: v for k, v in (("roll_deg", roll_deg), ("pitch_deg", pitch_deg)) if v is not None
-    }
-    numbers = [float(t), *(float(v) for v in attitude.values())]
-    if not np.isfinite(array[:, :-1]).all() or not all(map(math.isfinite, numbers)):
+    if not np.isfinite(array[:, :-1]).all():
         raise ValueError("ping: t, the attitude and the beam offsets must be finite")
     if as_array:
-        rows = np.ascontiguousarray(array)
-    else:
-        rows = array.tolist()
-        last = array.shape[1] - 1
-        for i in np.flatnonzero(~np.isfinite(array[:, last])):
-            rows[i][last] = None
-    return {
-        "type": "ping",
-        "t": float(t),
-        "beams": rows,
-        **{k: float(v) for k, v in attitude.items()},
-    }
+        return np.ascontiguousarray(array)
+    rows = array.tolist()
+    last = array.shape[1] - 1
+    for i in np.flatnonzero(~np.isfinite(array[:, last])):
+        rows[i][last] = None
+    return rows

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from geofix.conventions import PHYSICAL_LIMITS
-from geofix.errors import ConfigError, GeofixWarning
+from geofix.errors import ConfigError, GeofixError, GeofixWarning
 from geofix.logs.mission import Mission
 from geofix.maps.grid import Grid
 from geofix.navigator import Estimate
@@ -144,6 +144,109 @@ def load_ins_model(path):
 
     scenario = load_scenario(path)
     return InsErrorModel.from_specs(scenario.ins, scenario.dvl)
+
+
+def load_field_maps(paths, grid: Grid) -> tuple[Grid, ...]:
+    """The further fields' maps of ``paths``, each in the frame of the primary ``grid``.
+
+    Parameters
+    ----------
+    paths : sequence of str
+        Map files or ``builtin:NAME`` (:func:`geofix.maps.load_grid`), read with their
+        defaults (the only 2-D variable or ``z``; the kind from its names and units).
+    grid : Grid
+        The primary map: its ``meta["projection"]`` is the frame of every map.
+
+    Returns
+    -------
+    tuple of Grid
+        One map per path, resampled onto the primary's frame where its own differs
+        (:func:`map_in_frame`).
+
+    Raises
+    ------
+    ConfigError
+        A map of the primary's kind, two of one kind, or one that cannot be put in the
+        primary's frame.
+    MapError
+        A map that cannot be read.
+    """
+    from geofix.maps.io import load_grid
+
+    maps, kinds = [], [grid.kind]
+    for path in paths:
+        further = load_grid(path)
+        if further.kind in kinds:
+            raise ConfigError(
+                f"map {path} is a {further.kind} map like an earlier --map: give one map "
+                "per field kind"
+            )
+        kinds.append(further.kind)
+        maps.append(map_in_frame(further, grid.meta.get("projection"), f"map {path}"))
+    return tuple(maps)
+
+
+def map_in_frame(grid: Grid, frame: str | None, where: str = "map") -> Grid:
+    """``grid`` in the metric frame ``frame`` (a PROJ string; None: a metric map's own).
+
+    A map projected from lon/lat gets a frame centred on its own region
+    (:func:`geofix.maps.project.local_tmerc`), so two maps of different extents do not
+    share one. A map in another frame is read (bilinear) at the centres of a grid in
+    ``frame`` of the same cell size covering it: values at the same places on Earth.
+
+    Parameters
+    ----------
+    grid : Grid
+        The map.
+    frame : str or None
+        The target frame (the primary map's ``meta["projection"]``; None for a map in
+        metres with no projection, which only a map of no projection shares).
+    where : str
+        The map named in an error.
+
+    Returns
+    -------
+    Grid
+        ``grid`` itself when its frame is ``frame``; else the resampled map, its
+        ``meta["projection"]`` ``frame`` and ``meta["resampled_from"]`` its own.
+
+    Raises
+    ------
+    ConfigError
+        One of the two frames is metric with no projection (no way to relate them), or
+        the resampled map would exceed the memory budget.
+    """
+    from geofix.maps.project import frame_proj
+    from geofix.memory import cells_bytes, check_allocation
+
+    own = grid.meta.get("projection")
+    if own == frame:
+        return grid
+    if own is None or frame is None:
+        which = "has no projection" if own is None else "is projected from lon/lat"
+        raise ConfigError(
+            f"{where} {which} and the primary map {'is' if frame else 'is not'}: their "
+            "frames cannot be related; give maps of one frame"
+        )
+    source, target = frame_proj(own, where), frame_proj(frame, "the primary map")
+    edge = np.linspace(0.0, 1.0, 65)
+    xs = grid.x0 - 0.5 * grid.dx + edge * grid.values.shape[1] * grid.dx
+    ys = grid.y0 - 0.5 * grid.dy + edge * grid.values.shape[0] * grid.dy
+    ring_x = np.concatenate([xs, xs, np.full_like(ys, xs[0]), np.full_like(ys, xs[-1])])
+    ring_y = np.concatenate([np.full_like(xs, ys[0]), np.full_like(xs, ys[-1]), ys, ys])
+    x, y = target(*source(ring_x, ring_y, inverse=True))
+    cell = float(min(grid.dx, grid.dy))
+    nx = int(np.ceil((np.max(x) - np.min(x)) / cell)) + 1
+    ny = int(np.ceil((np.max(y) - np.min(y)) / cell)) + 1
+    try:
+        check_allocation(cells_bytes(ny, nx, copies=4), f"{where} in the primary map's frame")
+    except GeofixError as exc:
+        raise ConfigError(str(exc).splitlines()[0]) from None
+    x0, y0 = float(np.min(x)), float(np.min(y))
+    gx, gy = np.meshgrid(x0 + cell * np.arange(nx), y0 + cell * np.arange(ny))
+    values = grid.sample(*source(*target(gx, gy, inverse=True)), method="bilinear")
+    meta = {**grid.meta, "projection": frame, "resampled_from": own}
+    return replace(grid, values=values, x0=x0, y0=y0, dx=cell, dy=cell, meta=meta)
 
 
 def method_seed(seed: int, spec: str) -> np.random.Generator:

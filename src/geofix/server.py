@@ -4,14 +4,23 @@ One :class:`geofix.Navigator` per connection; every request line gets exactly on
 line, in order. Requests (UTF-8 JSON objects, one per line, at most
 :data:`MAX_LINE_BYTES` bytes):
 
-- ``{"type": "init", "t": s, "x": m, "y": m, "sigma_m": m}`` (optional ``heading_deg``);
+- ``{"type": "init", "t": s, "x": m, "y": m, "sigma_m": m}`` (optional ``heading_deg``;
+  optional ``fields``, a list of the kinds of the server's further maps this connection
+  weighs, e.g. ``["gravity"]``: by default every further map the server has, ``[]`` for
+  the primary map alone);
 - ``{"type": "nav", "t": s, "x": m, "y": m, "heading_deg": deg}`` -- the INS-indicated
   position in the map's metric frame (``lon`` / ``lat`` in degrees instead of ``x`` /
   ``y`` when the map was projected from lon/lat);
 - ``{"type": "ping", "t": s, "beams": [[across_m, along_m, value], ...]}`` (``value``
   null for a missing beam), or rows ``[across_m, along_m, down_m, value]`` of body-frame
   beam vectors; optional ``roll_deg`` / ``pitch_deg`` (the vehicle attitude, levelling
-  body-frame beams and the mounting offset: ``geofix.sensors.attitude``);
+  body-frame beams and the mounting offset: ``geofix.sensors.attitude``); optional
+  ``fields``, the further fields' readings of the same ping, each ``{"kind": "gravity",
+  "beams": [[across_m, along_m, value], ...], "noise_var": var}`` (``var`` in that map's
+  units squared, a number or one per beam; a kind of the connection's further maps, each
+  at most once). The ping is folded in as one update of every field it carries
+  (:class:`geofix.Navigator`); its NIS is the primary field's (null without a valid
+  primary beam: send ``[[0, 0, null]]`` for a ping of the further fields alone);
 - ``{"type": "estimate"}``;
 - ``{"type": "config", "method": "mpf:particles=2000", "ins": {...}, "dvl": {...}}`` --
   this connection's own method and INS error model (every key optional: ``method``
@@ -34,6 +43,10 @@ the connection stays usable; an estimate that is no longer finite is an error re
 a new navigator (``init`` again). A line longer than ``max_line_bytes`` gets an error
 reply and closes its connection; a client that disconnects mid-stream only ends its own
 connection.
+
+A server started with further maps (``geofix serve --map DEPTH --map GRAVITY``) keeps
+them for every connection; without them a request with ``fields`` naming a kind is an
+error reply. Messages without ``fields`` are answered as by a server of one map.
 
 Updates run on worker threads, never on the event loop, within a time budget; the
 connections, their buffered bytes, their filters' sizes and the server's memory are
@@ -83,6 +96,14 @@ MAX_ANGLE_DEG = {"heading_deg": 1e6, "roll_deg": 180.0, "pitch_deg": 180.0, "lat
 VALUE_RANGES = PHYSICAL_LIMITS
 """Largest ``|value|`` of a beam on a map of each kind: metres of depth, mGal of gravity
 (:data:`geofix.conventions.PHYSICAL_LIMITS`)."""
+
+
+VALUE_UNITS = {"depth": "m", "gravity": "mGal", "magnetic": "nT"}
+"""The unit of a beam's value on a map of each kind (for messages)."""
+MAX_NOISE_VAR = 1e12
+"""Largest ``noise_var`` of a further field's reading, map units squared."""
+FIELD_KEYS = ("kind", "beams", "noise_var")
+"""The keys of one further field's reading in a ``ping``."""
 
 
 class RequestError(GeofixError):
@@ -176,7 +197,7 @@ def check_beam_ranges(beams: np.ndarray, kind: str) -> None:
         ``(b, 3)`` or ``(b, 4)`` beams, offsets in metres, the value last (NaN: missing).
     kind : str
         The map's kind: a depth within +-12 km, a gravity anomaly within +-1000 mGal
-        (:data:`VALUE_RANGES`).
+        (:data:`VALUE_RANGES`), a magnetic anomaly within +-100000 nT.
 
     Raises
     ------
@@ -192,7 +213,7 @@ def check_beam_ranges(beams: np.ndarray, kind: str) -> None:
     limit = VALUE_RANGES.get(kind, math.inf)
     wild = np.flatnonzero(np.abs(values) > limit)
     if wild.size:
-        unit = "m" if kind == "depth" else "mGal"
+        unit = VALUE_UNITS.get(kind, "")
         raise RequestError(
             f"ping: beam {int(wild[0])} value {values[wild[0]]:g} is beyond +-{limit:g} {unit} "
             f"for a {kind} map"
@@ -267,6 +288,93 @@ def _numbers_only(request: dict, line: bytes, beams: list, width: int) -> np.nda
     return flat.reshape(len(beams), width)
 
 
+def field_readings(request: dict, kinds: tuple[str, ...], max_beams: int) -> list[dict]:
+    """A ``ping``'s ``fields``: one ``{kind, beams (b, 3|4), noise_var}`` per reading, checked.
+
+    Parameters
+    ----------
+    request : dict
+        The ``ping`` request.
+    kinds : tuple of str
+        The kinds of the connection's further maps.
+    max_beams : int
+        Most beams of one reading.
+
+    Returns
+    -------
+    list of dict
+        The readings, beams as float arrays (null: NaN) and ``noise_var`` a float or a
+        ``(b,)`` array, map units squared.
+
+    Raises
+    ------
+    RequestError
+        ``fields`` not a list of objects, an unknown key, a kind without a map or given
+        twice, malformed beams or values out of range, or a ``noise_var`` that is not a
+        number (or one per beam) in ``0 .. 1e12``.
+    """
+    fields = request["fields"]
+    if not isinstance(fields, list):
+        raise RequestError("ping: fields must be a list of {kind, beams, noise_var}")
+    out: list[dict] = []
+    for entry in fields:
+        if not isinstance(entry, dict):
+            raise RequestError("ping: each of fields must be an object {kind, beams, noise_var}")
+        unknown = sorted(set(entry) - set(FIELD_KEYS))
+        if unknown:
+            raise RequestError(f"ping: a field has unknown key(s) {', '.join(unknown)[:80]}")
+        kind = entry.get("kind")
+        if not isinstance(kind, str) or kind not in kinds:
+            shown = repr(kind[:40]) if isinstance(kind, str) else f"a {type(kind).__name__}"
+            known = ", ".join(kinds) if kinds else "none: this connection has one map"
+            raise RequestError(f"ping: field kind {shown} has no map here ({known})")
+        if any(done["kind"] == kind for done in out):
+            raise RequestError(f"ping: field {kind} given twice")
+        try:
+            beams = _beams({"beams": entry.get("beams")}, max_beams)
+            check_beam_ranges(beams, kind)
+        except RequestError as exc:
+            raise RequestError(f"ping: {kind} field {str(exc).removeprefix('ping: ')}") from None
+        out.append({"kind": kind, "beams": beams, "noise_var": _noise_var(entry, kind, beams)})
+    return out
+
+
+def _noise_var(entry: dict, kind: str, beams: np.ndarray):
+    """A further field's ``noise_var``: a number or one per beam, finite, in 0 .. 1e12."""
+    value = entry.get("noise_var")
+    what = f"ping: {kind} field noise_var"
+    if "noise_var" not in entry or value is None:
+        raise RequestError(f"{what} is missing ({kind} map units squared)")
+    items = value if isinstance(value, list) else [value]
+    if any(isinstance(v, bool) or not isinstance(v, int | float) for v in items):
+        raise RequestError(f"{what} must be a number or a list of numbers")
+    if isinstance(value, list) and len(value) != beams.shape[0]:
+        raise RequestError(f"{what} has {len(value)} values for {beams.shape[0]} beams")
+    try:
+        var = np.array(items, dtype=float)
+    except OverflowError:
+        var = np.array([math.inf])
+    if not (np.isfinite(var).all() and (var >= 0).all() and (var <= MAX_NOISE_VAR).all()):
+        raise RequestError(f"{what} must lie within 0 .. {MAX_NOISE_VAR:g}")
+    return var if isinstance(value, list) else float(var[0])
+
+
+def _init_kinds(request: dict, available: tuple[str, ...]) -> tuple[str, ...]:
+    """The further maps' kinds an ``init`` names (every one the server has by default)."""
+    if "fields" not in request:
+        return available
+    named = request["fields"]
+    if not isinstance(named, list) or not all(isinstance(k, str) for k in named):
+        raise RequestError('init: fields must be a list of map kinds, e.g. ["gravity"]')
+    missing = [k[:40] for k in named if k not in available]
+    if missing:
+        known = ", ".join(available) if available else "none: the server has one map"
+        raise RequestError(f"init: no further map of kind {', '.join(missing)} ({known})")
+    if len(set(named)) != len(named):
+        raise RequestError("init: fields names a kind twice")
+    return tuple(k for k in available if k in named)
+
+
 class Session:
     """One connection's navigator and the handling of its requests.
 
@@ -290,6 +398,9 @@ class Session:
     ledger : MemoryLedger, optional
         The server's memory ledger: a ``config`` reserves its filter's memory there
         first. Without one, the filter is checked against the memory budget alone.
+    field_grids : sequence of Grid, optional
+        The server's further maps (one per kind, in ``grid``'s frame): every connection
+        weighs them all unless its ``init`` names fewer (``fields``).
     """
 
     def __init__(
@@ -302,11 +413,14 @@ class Session:
         ins_model=None,
         limits: ServerLimits | None = None,
         ledger: MemoryLedger | None = None,
+        field_grids=(),
     ):
         self.grid = grid
         self.limits = limits or ServerLimits()
         self.ledger = ledger
+        self.field_grids = tuple(field_grids or ())
         self._defaults = (method, settings, seed, map_error, ins_model)
+        self._kinds = tuple(g.kind for g in self.field_grids)  # the connection's further maps
         self._current = (method, ins_model)
         self._reserve(method)
         self.navigator = self._navigator(method, ins_model)
@@ -356,7 +470,8 @@ class Session:
         from geofix.navigator import Navigator
 
         _, settings, seed, map_error, _ = self._defaults
-        return Navigator(self.grid, method, settings, seed, map_error, ins_model)
+        maps = [g for g in self.field_grids if g.kind in self._kinds] or None
+        return Navigator(self.grid, method, settings, seed, map_error, ins_model, field_grids=maps)
 
     def _reserve(self, method) -> None:
         """Reserve (or check against the budget) the memory of ``method``'s filter.
@@ -415,6 +530,15 @@ class Session:
         xy = self._position(request)
         sigma = _number(request, "sigma_m", MAX_COORD_M)
         heading = _angle(request, "heading_deg") if "heading_deg" in request else 0.0
+        kinds = _init_kinds(request, tuple(g.kind for g in self.field_grids))
+        if kinds != self._kinds:  # another set of further maps: a navigator of those
+            previous = self._kinds
+            self._kinds = kinds
+            try:
+                self.navigator = self._navigator(*self._current)
+            except BaseException:
+                self._kinds = previous
+                raise
         estimate = self.navigator.init(t, xy, sigma, float(np.deg2rad(heading)))
         self._t0 = t
         return estimate
@@ -428,11 +552,18 @@ class Session:
     def _ping(self, request: dict):
         beams = _beams(request, self.navigator.settings.max_beams, self._line)
         check_beam_ranges(beams, self.grid.kind)
+        fields = None
+        if "fields" in request:
+            max_beams = self.navigator.settings.max_beams
+            fields = field_readings(request, self.navigator.field_kinds, max_beams)
         roll, pitch = (
             float(np.deg2rad(_angle(request, key))) if key in request else None
             for key in ("roll_deg", "pitch_deg")
         )
-        return self.navigator.measure(self._time(request), beams, roll=roll, pitch=pitch)
+        t = self._time(request)
+        if fields is None:
+            return self.navigator.measure(t, beams, roll=roll, pitch=pitch)
+        return self.navigator.measure(t, beams, roll=roll, pitch=pitch, fields=fields)
 
     def _estimate(self, request: dict):
         return self.navigator.estimate()
@@ -578,6 +709,9 @@ class NavigatorServer:
     log : callable, optional
         Called as ``log(cause, detail)`` for trouble that is not a client's request
         (default: a :class:`~geofix.server_limits.RateLog` on standard error).
+    field_grids : sequence of Grid, optional
+        Further maps (one per kind other than ``grid``'s, in its frame) whose readings a
+        ``ping`` may carry (``fields``).
     """
 
     def __init__(
@@ -590,8 +724,10 @@ class NavigatorServer:
         ins_model=None,
         limits: ServerLimits | None = None,
         log=None,
+        field_grids=(),
     ) -> None:
         self.grid, self.method, self.settings = grid, method, settings
+        self.field_grids = tuple(field_grids or ())
         self.seed, self.map_error, self.ins_model = seed, map_error, ins_model
         self.limits = limits or ServerLimits()
         self.log = log or RateLog(self.limits.log_interval_s)
@@ -634,6 +770,7 @@ class NavigatorServer:
             self.ins_model,
             self.limits,
             self.ledger,
+            self.field_grids,
         )
 
     async def start(self, host: str = "127.0.0.1", port: int = 0) -> int:
@@ -799,6 +936,7 @@ def serve(
     ins_model=None,
     limits: ServerLimits | None = None,
     announce: Callable[[str, int], None] | None = None,
+    field_grids=(),
 ) -> None:
     """Run the server until Ctrl-C or SIGTERM (``geofix serve``); prints nothing itself.
 
@@ -831,6 +969,9 @@ def serve(
         when None.
     announce : callable, optional
         Called as ``announce(host, port)`` once the server listens, with the port bound.
+    field_grids : sequence of Grid, optional
+        Further maps (one per kind other than ``grid``'s, in its frame) whose readings a
+        ``ping`` may carry (``fields``).
 
     Raises
     ------
@@ -841,7 +982,9 @@ def serve(
         A filter larger than the memory budget.
     """
     check_address(host, port)
-    server = NavigatorServer(grid, method, settings, seed, map_error, ins_model, limits)
+    server = NavigatorServer(
+        grid, method, settings, seed, map_error, ins_model, limits, field_grids=field_grids
+    )
 
     async def main():
         bound = await server.start(host, port)
@@ -872,6 +1015,7 @@ def serve_in_thread(
     ins_model=None,
     limits: ServerLimits | None = None,
     log=None,
+    field_grids=(),
 ):
     """Run a server on a free port in a background thread; yields ``(host, port)``.
 
@@ -900,6 +1044,9 @@ def serve_in_thread(
     log : callable, optional
         Called as ``log(cause, detail)`` for trouble that is not a client's request
         (default: a :class:`~geofix.server_limits.RateLog` on standard error).
+    field_grids : sequence of Grid, optional
+        Further maps (one per kind other than ``grid``'s, in its frame) whose readings a
+        ``ping`` may carry (``fields``).
 
     Yields
     ------
@@ -907,7 +1054,9 @@ def serve_in_thread(
         ``(host, port)`` the server listens on.
     """
     loop = asyncio.new_event_loop()
-    server = NavigatorServer(grid, method, settings, seed, map_error, ins_model, limits, log)
+    server = NavigatorServer(
+        grid, method, settings, seed, map_error, ins_model, limits, log, field_grids
+    )
     port = loop.run_until_complete(server.start(host, 0))
     thread = threading.Thread(target=loop.run_forever, daemon=True)
     thread.start()
