@@ -44,6 +44,7 @@ _HEADER = [
     "end RMS (m)",
     "RMS / fused bound",
     "RMS / own bound",
+    "RMS / offset-aware bound",
     "median NEES",
     "false fixes",
     "flagged ambiguous",
@@ -72,7 +73,7 @@ def _rows(trial, grid) -> dict:
 
 
 def _scenario_table(scen, count: int) -> tuple[list[list], dict]:
-    from geofix.evaluate.crlb import trial_crlb
+    from geofix.evaluate.crlb import offset_state_crlb, trial_crlb
     from geofix.evaluate.runner import method_rng, run_trial
     from geofix.methods import parse_method_spec
     from geofix.sim.simulate import prepare_map, simulate_trial
@@ -83,7 +84,11 @@ def _scenario_table(scen, count: int) -> tuple[list[list], dict]:
         row: float(np.sqrt(np.mean([trial_crlb(*t[row]).recursive_var_m2 for t in trials])))
         for row in ROWS
     }
-    table, outcome = [], {"bounds": bounds, "methods": {}}
+    aware = {
+        row: float(np.sqrt(np.mean([offset_state_crlb(*t[row]).recursive_var_m2 for t in trials])))
+        for row in ROWS
+    }
+    table, outcome = [], {"bounds": bounds, "aware": aware, "methods": {}}
     for spec in METHODS:
         method = parse_method_spec(spec)
         per_row = {}
@@ -103,23 +108,17 @@ def _scenario_table(scen, count: int) -> tuple[list[list], dict]:
                     fmt(s["rms"], 0),
                     fmt(s["rms"] / bounds["depth + gravity"], 2),
                     fmt(s["rms"] / bounds[row], 2),
+                    fmt(s["rms"] / aware["depth + gravity"], 2),
                     _nees(s["nees"]),
                     f"{s['false']} of {count}",
                     f"{s['ambiguous'].sum()} of {count}",
                 ]
             )
-    table.append(
-        [
-            "error-state CRLB, end (m)",
-            "",
-            " / ".join(f"{r}: {bounds[r]:.0f}" for r in ROWS),
-            "",
-            "",
-            "",
-            "",
-            "",
-        ]
-    )
+    for label, values in (
+        ("error-state CRLB, end (m)", bounds),
+        ("offset-aware CRLB, end (m)", aware),
+    ):
+        table.append([label, "", " / ".join(f"{r}: {values[r]:.0f}" for r in ROWS)] + [""] * 6)
     return table, outcome
 
 
@@ -161,6 +160,7 @@ def _criteria(checks) -> str:
     lines = ["\n**The criteria, as measured.**\n", _summary(checks), ""]
     for name, outcome in checks:
         bound = outcome["bounds"]["depth + gravity"]
+        aware = outcome["aware"]["depth + gravity"]
         for spec, rows in outcome["methods"].items():
             fused = rows["depth + gravity"]["rms"]
             better = min(rows["depth alone"]["rms"], rows["gravity alone"]["rms"])
@@ -168,46 +168,70 @@ def _criteria(checks) -> str:
             either = rows["depth alone"]["ambiguous"] | rows["gravity alone"]["ambiguous"]
             fused_flag = rows["depth + gravity"]["ambiguous"]
             still = int((both & fused_flag).sum())
-            ratio = fused / bound
-            near = "within" if ratio <= BOUND_FACTOR else "beyond"
+            ratio, ratio_aware = fused / bound, fused / aware
             lines.append(
                 f"- `{name}`, `{spec}`: fused end RMS {fused:.0f} m against the better "
                 f"single field's {better:.0f} m ({'at most' if fused <= better else 'above'} "
-                f"it); {ratio:.2f} x the fused bound ({near} {BOUND_FACTOR}x); "
-                f"{int(both.sum())} trials flagged ambiguous by both single fields "
-                f"({still} of them still flagged fused), {int(either.sum())} by either "
-                f"({int((either & fused_flag).sum())} still flagged fused)."
+                f"it); {ratio:.2f} x the known-offset fused bound ({_near(ratio)} "
+                f"{BOUND_FACTOR}x) and {ratio_aware:.2f} x the offset-aware one "
+                f"({_near(ratio_aware)}); {int(both.sum())} trials flagged ambiguous by both "
+                f"single fields ({still} of them still flagged fused), {int(either.sum())} by "
+                f"either ({int((either & fused_flag).sum())} still flagged fused)."
             )
     return "\n".join(lines) + "\n"
 
 
+def _near(ratio: float) -> str:
+    return "within" if ratio <= BOUND_FACTOR else "beyond"
+
+
 def _summary(checks) -> str:
     """One paragraph: how many scenario-method pairs meet each criterion."""
-    pairs = better = near = vacuous = clean = flagged = 0
-    worst = 0.0
-    for _, outcome in checks:
+    pairs = better = near = near_aware = vacuous = clean = flagged = 0
+    worst = worst_aware = 0.0
+    costs = []
+    for name, outcome in checks:
         bound = outcome["bounds"]["depth + gravity"]
+        aware = outcome["aware"]["depth + gravity"]
+        costs.append(
+            f"`{name}` {aware / bound:.2f}x (depth alone "
+            f"{outcome['aware']['depth alone'] / outcome['bounds']['depth alone']:.2f}x, "
+            f"gravity alone "
+            f"{outcome['aware']['gravity alone'] / outcome['bounds']['gravity alone']:.2f}x)"
+        )
         for rows in outcome["methods"].values():
             fused = rows["depth + gravity"]
             pairs += 1
             better += fused["rms"] <= min(rows[r]["rms"] for r in ROWS[:2])
             near += fused["rms"] / bound <= BOUND_FACTOR
+            near_aware += fused["rms"] / aware <= BOUND_FACTOR
             worst = max(worst, fused["rms"] / bound)
+            worst_aware = max(worst_aware, fused["rms"] / aware)
             both = rows["depth alone"]["ambiguous"] & rows["gravity alone"]["ambiguous"]
             vacuous += not both.any()
             clean += not (both & fused["ambiguous"]).any()
             flagged += int(fused["ambiguous"].sum())
     return (
         f"Of the {pairs} scenario and filter pairs, the fused end RMS is at most the better "
-        f"single field's in {better}; it is within {BOUND_FACTOR}x the fused bound in "
-        f"{near} (the largest ratio {worst:.2f}); where both single fields end a trial "
-        f"flagged ambiguous the fused filter does not in {clean} of {pairs} pairs "
-        f"({flagged} fused trials flagged in all), but in {vacuous} of the pairs no trial "
-        "is flagged by both single fields at once, so there the criterion holds without "
-        "being tested. The bound knows every field's offset, while the default filters "
-        "marginalise an unknown one per field (5 m + 0.2 % of depth, 5 mGal against the "
-        "gravimeter's 0.5 mGal noise): that is where the gravity-alone rows lose most "
-        "against their own bound, and the fused rows inherit part of that gap."
+        f"single field's in {better}. Within {BOUND_FACTOR}x the fused bound: against the "
+        f"known-offset bound in {near} (the largest ratio {worst:.2f}), against the "
+        f"offset-aware bound in {near_aware} (the largest ratio {worst_aware:.2f}). Where "
+        f"both single fields end a trial flagged ambiguous the fused filter does not in "
+        f"{clean} of {pairs} pairs ({flagged} fused trials flagged in all), but in "
+        f"{vacuous} of the pairs no trial is flagged by both single fields at once, so there "
+        "the criterion holds without being tested.\n\n"
+        "Which bound to read. The known-offset bound is the limit of an estimator told every "
+        "field's offset; the simulated offsets are zero here, so such an estimator exists, "
+        "but the default filters are not told: they estimate one offset per field as a "
+        "random-walk state from their maps' default prior. The offset-aware bound is the "
+        "limit of exactly that problem (the posterior bound of the INS error state "
+        "augmented with the offsets, `geofix.evaluate.crlb.offset_state_crlb`), so it is "
+        "the one a filter with these settings can be held to; the known-offset one stays "
+        "the limit of the problem with the offsets known. A ratio below 1 to the "
+        "offset-aware bound is no contradiction: it averages over offsets drawn from the "
+        "filters' prior, while these trials' offsets sit at its mean. Carrying the offsets "
+        "costs, "
+        "at the end point: " + "; ".join(costs) + "."
     )
 
 
@@ -227,8 +251,11 @@ def _intro(count: int) -> str:
         "(`map_model=imperfect`: every field's offset is unknown, 5 m + 0.2 % of depth and "
         "5 mGal). Two tracks: one where the seabed is the smoother field, one where the "
         "gravity anomaly is. *RMS / fused bound* divides each row's end RMS by the error-"
-        "state CRLB of depth + gravity (its end point, RMS over the trials); *own bound* by "
-        "the row's own field(s)' bound. *False fixes*: end error beyond "
+        "state CRLB of depth + gravity with every field's offset known (its end point, RMS "
+        "over the trials); *own bound* by the row's own field(s)' known-offset bound; "
+        "*offset-aware bound* by the bound of depth + gravity with each field's offset a "
+        "random-walk state as the filters model it (prior 5 m + 0.2 % of depth and 5 mGal, "
+        "walk 1e-3 units^2/s). *False fixes*: end error beyond "
         f"{FALSE_FIX_CELLS:g} map cells, not flagged ambiguous, and beyond "
         f"{FALSE_FIX_SIGMAS:g} sigma of the filter's own covariance. *Flagged ambiguous*: "
         "the filter's own integrity flag at the end.\n"
