@@ -479,7 +479,12 @@ def replay_command(
         list[str], typer.Option("--method", "-m", help="Recursive method spec, e.g. 'pmf'.")
     ],
     map_path: Annotated[
-        str | None, typer.Option("--map", help="Map file (default: an export's own map).")
+        list[str] | None,
+        typer.Option(
+            "--map",
+            help="Map file (default: an export's own map); one per --field, in its order, "
+            "for several MGD77T fields.",
+        ),
     ] = None,
     ins_initial_error_m: Annotated[
         float | None, typer.Option(help="Initial INS error simulated on a GNSS log, metres.")
@@ -493,7 +498,11 @@ def replay_command(
         bool, typer.Option("--json", help="Print one JSON object on stdout, nothing else.")
     ] = False,
     noise_std: Annotated[
-        float | None, typer.Option(help="Measurement noise 1-sigma per beam, map units.")
+        list[float] | None,
+        typer.Option(
+            help="Measurement noise 1-sigma per beam, map units; one per --field for several "
+            "fields."
+        ),
     ] = None,
     beams: Annotated[
         int | None, typer.Option(help="Beams of a ping used per update (default 64).")
@@ -501,7 +510,10 @@ def replay_command(
     trial: Annotated[int, typer.Option(help="Trial of a geofix export log.")] = 0,
     field: Annotated[
         list[str] | None,
-        typer.Option(help="MGD77T channel: depth, gravity or magnetic (default depth)."),
+        typer.Option(
+            help="MGD77T channel: depth, gravity or magnetic (default depth); repeat it to "
+            "weigh several in one filter (the first the primary), each with its --map."
+        ),
     ] = None,
     segment: Annotated[
         int | None,
@@ -520,13 +532,14 @@ def replay_command(
         from geofix.replay import replay_log
 
         settings = {}
-        if noise_std is not None:
-            settings["noise_std"] = noise_std
+        stds = _field_noise(field or [], noise_std or [])
+        if stds:
+            settings["noise_std"] = stds[0]
         if beams is not None:
             settings["max_update_beams"] = beams
         result, paths = replay_log(
             log,
-            map_path,
+            map_path or None,
             method,
             ins,
             ins_initial_error_m,
@@ -534,10 +547,11 @@ def replay_command(
             out,
             settings,
             trial,
-            field_name=_one_field(field),
+            field_name=field or None,
             segment=segment,
             start_h=start_h,
             hours=hours,
+            field_noise_std=dict(zip((field or [])[1:], stds[1:], strict=False)),
         )
         if json_output:
             sys.stdout.write(json.dumps(result.summary) + "\n")
@@ -549,16 +563,14 @@ def replay_command(
     _guarded(go)
 
 
-def _one_field(fields: list[str] | None) -> str | None:
-    """The one ``--field`` of a replay (several fields in one filter are not supported)."""
-    if not fields:
-        return None
-    if len(set(fields)) > 1:
+def _field_noise(fields: list[str], stds: list[float]) -> list[float]:
+    """The ``--noise-std`` of a replay: none, one (the primary's) or one per ``--field``."""
+    if len(stds) > 1 and len(stds) != len(fields):
         raise GeofixError(
-            f"replay: one --field at a time for now (got {', '.join(fields)}); "
-            "several fields in one filter are not supported yet"
+            f"replay: give one --noise-std (the primary field's) or one per --field, in its "
+            f"order (got {len(stds)} --noise-std and {len(fields)} --field)"
         )
-    return fields[0]
+    return list(stds)
 
 
 #: The number columns of the replay table: (header, key of the replay summary).

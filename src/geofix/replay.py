@@ -12,6 +12,11 @@ The INS the navigator corrects:
 Each method gets one :class:`geofix.Navigator`; the replay only feeds it, in time order,
 one ``motion`` and one ``measure`` per ping -- the same steps a campaign trial and a
 server connection take.
+
+A mission of several fields (:attr:`geofix.logs.Mission.fields`: an MGD77T log read with
+``--field depth --field gravity``) is replayed with one map per field, each ping's
+further readings folded into the same update (``Navigator(..., field_grids=...)``); a
+further field's noise 1-sigma is given per field, else :data:`DEFAULT_FIELD_NOISE_STD`.
 """
 
 from __future__ import annotations
@@ -48,6 +53,11 @@ MAX_BEAM_OFFSET_M = 1.0e5
 """Beams farther than this from the vehicle (across or along) are dropped, metres."""
 MAX_POSITION_M = 4.0e7
 """Pings whose navigation lies farther than this from the frame's origin are dropped."""
+DEFAULT_FIELD_NOISE_STD = {"depth": 2.0, "gravity": 2.0, "magnetic": 20.0}
+"""Measurement noise 1-sigma of a further field when none is given, map units: the
+navigator's default for depth (m), the upper end of a marine gravimeter's 1-2 mGal for a
+free-air anomaly, and 20 nT for a residual magnetic field (a ship's magnetometer reads
+to a few nT; the diurnal variation and the map's own error dominate)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -263,14 +273,48 @@ def replay(
     seed: int = 0,
     settings=None,
     map_error: Grid | None = None,
+    field_grids=(),
+    field_noise_std=None,
 ) -> ReplayResult:
     """Run every method's navigator over the mission, one ping at a time.
+
+    Parameters
+    ----------
+    mission : Mission
+        The log (with :attr:`~geofix.logs.Mission.fields` for several fields).
+    grid : Grid
+        The primary field's map.
+    methods : list of str
+        Recursive method specs.
+    ins : InsSpec or dict, optional
+        INS numbers for a GNSS log (:func:`replay_inputs`).
+    initial_error_m : float, optional
+        Initial INS position error, metres (:func:`replay_inputs`).
+    seed : int
+        Seed of the INS simulation and of every method's generator.
+    settings : dict, optional
+        Navigator settings (``noise_std`` the primary field's, map units).
+    map_error : Grid, optional
+        The primary map's per-cell standard deviation, map units.
+    field_grids : sequence of Grid
+        One map per further field of the mission (any order; matched by kind), in the
+        primary map's frame.
+    field_noise_std : dict, optional
+        Kind -> measurement noise 1-sigma of a further field, its map's units (default
+        :data:`DEFAULT_FIELD_NOISE_STD`).
 
     Returns
     -------
     ReplayResult
         ``estimates[method]`` one :class:`Estimate` per ping; ``summary`` the JSON of
         ``geofix replay --json``.
+
+    Raises
+    ------
+    ConfigError
+        No method, a bad seed or setting, a method that cannot run ping by ping, a further
+        field without its map or a map without its field, or a noise 1-sigma outside
+        :data:`NOISE_STD_RANGE`.
     """
     from geofix.navigator import Navigator, check_method_budget
 
@@ -280,6 +324,8 @@ def replay(
     check_settings(settings)
     for spec in methods:
         check_online_method(spec)
+    maps = _field_maps(mission, field_grids)
+    field_vars = _field_vars(maps, field_noise_std)
     mission = screen_mission(mission, grid.kind)
     inputs = replay_inputs(mission, ins, initial_error_m, seed)
     noise_var = _noise_var(mission)
@@ -287,10 +333,53 @@ def replay(
     for spec in methods:
         rng = method_seed(seed, spec)
         check_method_budget(spec, settings, grid)  # refused before the filter is built
-        nav = Navigator(grid, spec, settings, rng, map_error, ins_model=inputs.ins_model)
-        estimates[spec] = drive(nav, mission, inputs, noise_var)
+        nav = Navigator(
+            grid, spec, settings, rng, map_error, ins_model=inputs.ins_model, field_grids=maps
+        )
+        estimates[spec] = drive(nav, mission, inputs, noise_var, field_vars)
     summary = summarise(mission, inputs, estimates)
     return ReplayResult(mission, inputs, estimates, summary)
+
+
+def _field_maps(mission: Mission, field_grids) -> tuple[Grid, ...]:
+    """The maps of the mission's further fields in its order; ConfigError unless one each."""
+    by_kind = {g.kind: g for g in field_grids or ()}
+    if len(by_kind) != len(tuple(field_grids or ())):
+        raise ConfigError("replay: give one map per further field kind")
+    kinds = list(mission.fields)
+    lacking = [k for k in kinds if k not in by_kind]
+    if lacking:
+        raise ConfigError(
+            f"replay: the log's {', '.join(lacking)} field has no map: give a --map for each "
+            "--field"
+        )
+    idle = [k for k in by_kind if k not in kinds]
+    if idle:
+        raise ConfigError(
+            f"replay: a {', '.join(idle)} map but no {', '.join(idle)} field in the log "
+            "(--field names the log's channels)"
+        )
+    return tuple(by_kind[k] for k in kinds)
+
+
+def _field_vars(maps: tuple[Grid, ...], field_noise_std) -> dict[str, float]:
+    """Kind -> measurement variance of every further field, map units squared."""
+    given = dict(field_noise_std or {})
+    out = {}
+    low, high = NOISE_STD_RANGE
+    for g in maps:
+        std = given.get(g.kind, DEFAULT_FIELD_NOISE_STD.get(g.kind, 1.0))
+        try:
+            number = float(std)
+        except (TypeError, ValueError):
+            raise ConfigError(f"--noise-std of the {g.kind} field must be a number") from None
+        if not low <= number <= high:
+            raise ConfigError(
+                f"--noise-std of the {g.kind} field must lie within {low:g} .. {high:g} "
+                f"{g.units}, got {std}"
+            )
+        out[g.kind] = number**2
+    return out
 
 
 def check_seed(seed) -> None:
@@ -349,7 +438,8 @@ def screen_mission(mission: Mission, kind: str) -> Mission:
     frame's origin, or when its time is not after the pings before it (a repeated
     record); a beam is dropped when an offset exceeds :data:`MAX_BEAM_OFFSET_M`,
     and a value beyond the physical range of the map's ``kind``
-    (:data:`geofix.conventions.PHYSICAL_LIMITS`) is blanked (NaN, as a missing beam).
+    (:data:`geofix.conventions.PHYSICAL_LIMITS`; each further field's by its own kind) is
+    blanked (NaN, as a missing beam).
 
     Raises
     ------
@@ -369,12 +459,16 @@ def screen_mission(mission: Mission, kind: str) -> Mission:
         )
     keep &= _after_previous(times)
     beams, blanked = _screen_beams(np.asarray(mission.beams, dtype=float), kind)
+    fields = {}
+    for other, extra in mission.fields.items():
+        fields[other], more = _screen_beams(np.asarray(extra, dtype=float), other)
+        blanked = blanked | more
     dropped = int((~keep).sum())
     poisoned = int((blanked & keep).sum())
     if dropped == 0 and poisoned == 0:
         return mission
     _warn_poisoned(mission, kind, dropped, poisoned)
-    screened = replace(mission, beams=beams)
+    screened = replace(mission, beams=beams, fields=fields)
     return screened if keep.all() else _kept(screened, keep)
 
 
@@ -439,6 +533,7 @@ def _kept(mission: Mission, keep: np.ndarray) -> Mission:
         velocity=cut(mission.velocity),
         sigma_position=cut(mission.sigma_position),
         start_utc=None if mission.start_utc is None else mission.start_utc + float(times[0]),
+        fields={kind: cut(extra) for kind, extra in mission.fields.items()},
     )
 
 
@@ -511,16 +606,40 @@ def _rebased(mission: Mission, index: np.ndarray, window: tuple[float, float]) -
     return replace(part, times=part.times - first, start_utc=start_utc, meta=meta)
 
 
-def drive(nav, mission: Mission, inputs: ReplayInput, noise_var=None) -> list[Estimate]:
+def drive(
+    nav, mission: Mission, inputs: ReplayInput, noise_var=None, field_vars=None
+) -> list[Estimate]:
     """Feed one navigator the mission: init, then per ping ``motion`` and ``measure``.
 
     The log's roll and pitch (where it has them) go with every ping: they level the
     sensor's mounting offset (the beams of a log are level-frame offsets already).
+
+    Parameters
+    ----------
+    nav : Navigator
+        The navigator (with ``field_grids`` for the further fields it is to weigh).
+    mission : Mission
+        The log.
+    inputs : ReplayInput
+        The INS track and prior sigmas.
+    noise_var : float or numpy.ndarray, optional
+        The primary field's measurement variance, map units squared (None: the
+        navigator's ``noise_std``).
+    field_vars : dict, optional
+        Kind -> measurement variance of each further field the navigator has a map of,
+        that map's units squared (default :data:`DEFAULT_FIELD_NOISE_STD` squared); a
+        ping carries every such field's reading.
     """
     t = np.asarray(mission.times, dtype=float)
     sigma = inputs.sigma
     roll, pitch = (_attitude(angles, mission.n) for angles in (mission.roll, mission.pitch))
     nav.init(t[0], inputs.indicated[0], float(sigma[0]), float(inputs.heading[0]))
+    field_vars = field_vars or {}
+    kinds = [
+        (kind, field_vars.get(kind, DEFAULT_FIELD_NOISE_STD.get(kind, 1.0) ** 2))
+        for kind in nav.field_kinds
+        if kind in mission.fields
+    ]
     out = []
     for k in range(mission.n):
         if k > 0:
@@ -529,8 +648,22 @@ def drive(nav, mission: Mission, inputs: ReplayInput, noise_var=None) -> list[Es
         beams = np.asarray(mission.beams[k], dtype=float)
         keep = np.isfinite(beams[:, :2]).all(axis=1)
         var = noise_var if np.ndim(noise_var) == 0 else np.asarray(noise_var)[keep]
-        out.append(nav.measure(t[k], beams[keep], var, roll[k], pitch[k]))
+        if not kinds:
+            out.append(nav.measure(t[k], beams[keep], var, roll[k], pitch[k]))
+            continue
+        fields = [
+            {"kind": kind, "beams": _level_rows(mission.fields[kind][k]), "noise_var": v}
+            for kind, v in kinds
+        ]
+        out.append(nav.measure(t[k], beams[keep], var, roll[k], pitch[k], fields=fields))
     return out
+
+
+def _level_rows(beams: np.ndarray) -> np.ndarray:
+    """A further field's beams of one ping, rows without an offset dropped (one kept)."""
+    beams = np.asarray(beams, dtype=float)
+    keep = np.isfinite(beams[:, :2]).all(axis=1)
+    return beams[keep] if keep.any() else np.array([[0.0, 0.0, np.nan]])
 
 
 def _attitude(angles, n: int) -> list:
@@ -874,10 +1007,11 @@ def replay_log(
     out_dir=None,
     settings: dict | None = None,
     trial: int = 0,
-    field_name: str | None = None,
+    field_name=None,
     segment: int | None = None,
     start_h: float | None = None,
     hours: float | None = None,
+    field_noise_std=None,
 ) -> tuple[ReplayResult, dict]:
     """``geofix replay``: read the log and the map, replay, write the outputs.
 
@@ -885,22 +1019,29 @@ def replay_log(
     ----------
     log : str or pathlib.Path
         Any log :func:`geofix.logs.read_mission` reads.
-    map_path : str or None
+    map_path : str or list of str or None
         Any map :func:`geofix.maps.load_grid` reads (its ``z_std`` layer, if any, is the
-        per-cell map error); None for a ``geofix export`` log, whose own map is used.
+        per-cell map error); None for a ``geofix export`` log, whose own map is used. A
+        list: one map per field of ``field_name``, in its order (the first the primary;
+        the others put in its frame, :func:`load_field_maps`).
     ins_path : str or pathlib.Path, optional
         Scenario YAML whose ``ins:`` numbers drive the INS simulated on a GNSS log.
     out_dir : str or pathlib.Path, optional
         Folder for ``estimates.csv``, ``estimates.nc`` and ``replay.png`` (none if None).
-    field_name : {"depth", "gravity", "magnetic"}, optional
-        Channel of an MGD77T log (``--field``) (default ``depth``, ``gravity`` for a file without
-        depths); a depth or gravity field needs a map of that kind.
+    field_name : str or list of str, optional
+        Channel of an MGD77T log (``--field``: ``depth``, ``gravity`` or ``magnetic``;
+        default ``depth``, ``gravity`` for a file without depths); a field needs a map of
+        its kind. Several (``["depth", "gravity"]``): one mission of them all, the first
+        the primary (:func:`geofix.logs.mgd77.joint_segments`), each with its own map.
     segment : int, optional
         0-based continuous segment of that field in an MGD77T log
         (:func:`geofix.logs.mgd77.field_segments`); default the longest.
     start_h, hours : float, optional
         Replay only the window from ``start_h`` hours after the mission's (segment's)
         start, ``hours`` long (:func:`window_mission`); any log.
+    field_noise_std : dict, optional
+        Kind -> measurement noise 1-sigma of each further field, its map's units
+        (default :data:`DEFAULT_FIELD_NOISE_STD`).
 
     Returns
     -------
@@ -924,25 +1065,58 @@ def replay_log(
     if out_dir is not None:
         prepare_out_dir(out_dir)
     map_error = None
-    if map_path is None:
+    names = _names(field_name)
+    paths = _names(map_path)
+    if len(names) > 1 and len(paths) != len(names):
+        raise ConfigError(
+            f"replay: give one --map per --field, in the same order (got {len(names)} --field "
+            f"and {len(paths)} --map)"
+        )
+    if len(set(names)) != len(names):
+        raise ConfigError(f"replay: --field names a channel twice: {', '.join(names)}")
+    if len(paths) > 1 and len(names) < 2:
+        raise ConfigError(
+            "replay: several --map need an MGD77T log and one --field per map, in the same "
+            "order (the first the primary)"
+        )
+    field_grids: tuple[Grid, ...] = ()
+    if not paths:
         if not str(log).lower().endswith((".nc", ".nc4")):
             raise ConfigError("replay: --map is required unless the log is a geofix export")
         mission, grid = read_exported(log, trial=trial)
     else:
-        grid = load_grid(map_path)
-        map_error = load_map_error(map_path) if not str(map_path).startswith("builtin:") else None
+        primary = paths[0]
+        grid = load_grid(primary)
+        map_error = load_map_error(primary) if not str(primary).startswith("builtin:") else None
         frame = grid.meta.get("projection")
         if frame is not None:
-            frame_proj(frame, f"map {map_path}")
-        mission = _read_log(log, frame, trial, field_name, segment)
-        _check_field_map(mission, grid, map_path)
+            frame_proj(frame, f"map {primary}")
+        field_grids = load_field_maps(paths[1:], grid)
+        for name, path, further in zip(names[1:], paths[1:], field_grids, strict=True):
+            if further.kind != name:
+                raise ConfigError(
+                    f"replay: --field {name} needs a {name} map; map {path} is a {further.kind} map"
+                )
+        mission = _read_log(log, frame, trial, names, segment)
+        _check_field_map(mission, grid, primary)
         if mission.frame is not None and frame is None:
             raise ConfigError(
                 f"replay: the log is in lon/lat but map {map_path} has no projection; "
                 "grid it with geofix grid or load a lon/lat map"
             )
     mission = window_mission(mission, start_h, hours)
-    result = replay(mission, grid, methods, ins, initial_error_m, seed, settings, map_error)
+    result = replay(
+        mission,
+        grid,
+        methods,
+        ins,
+        initial_error_m,
+        seed,
+        settings,
+        map_error,
+        field_grids,
+        field_noise_std,
+    )
     paths = {} if out_dir is None else write_outputs(result, grid, out_dir)
     return result, paths
 
@@ -953,16 +1127,28 @@ def _is_mgd77(log) -> bool:
     return not str(log).startswith("builtin:") and Path(log).suffix.lower() in MGD77T_SUFFIXES
 
 
-def _read_log(log, frame, trial: int, field: str | None, segment: int | None) -> Mission:
-    """The mission to replay: an MGD77T log's segment of ``field``, else the log's mission."""
-    from geofix.logs.mgd77 import field_segments, pick_segment
+def _names(value) -> list[str]:
+    """A ``--field`` or ``--map`` value as a list (None: none; a string: that one)."""
+    if value is None:
+        return []
+    if isinstance(value, str | Path):
+        return [str(value)]
+    return [str(v) for v in value]
+
+
+def _read_log(log, frame, trial: int, fields: list[str], segment: int | None) -> Mission:
+    """The mission to replay: an MGD77T log's segment of ``fields``, else the log's mission."""
+    from geofix.logs.mgd77 import field_segments, joint_segments, pick_segment
     from geofix.logs.read import read_mission
 
     if not _is_mgd77(log):
-        if field is not None or segment is not None:
+        if fields or segment is not None:
             raise ConfigError("replay: --field and --segment apply to MGD77T logs (.m77t) only")
         return read_mission(log, frame=frame, trial=trial)
-    name, missions = field_segments(log, field, frame=frame)
+    if len(fields) > 1:
+        name, missions = joint_segments(log, fields, frame=frame)
+    else:
+        name, missions = field_segments(log, fields[0] if fields else None, frame=frame)
     return pick_segment(missions, segment, f"{Path(log).name} ({name})")
 
 

@@ -139,7 +139,7 @@ def test_default_field_is_depth():
         (["--hours", "0"], "--hours must be a finite number of hours > 0"),
         (["--start-h", "-1"], "--start-h must be a finite number of hours >= 0"),
         (["--field", "salinity"], "unknown --field 'salinity'"),
-        (["--field", "depth", "--field", "gravity"], "one --field at a time"),
+        (["--field", "depth", "--field", "gravity"], "give one --map per --field"),
         (["--field", "gravity"], "--field gravity needs a gravity map"),
     ],
 )

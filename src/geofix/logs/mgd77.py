@@ -44,6 +44,10 @@ Reading, in order (every count lands in ``meta["file"]``):
    apart in time. In a segment, each field's mission holds the records with a value of
    that field (one beam at offset ``(0, 0)``), split again where its values are more than
    ``max_gap_s`` apart; missions shorter than ``min_segment_s`` are dropped.
+   Read ``joint``, a segment gives one mission of every field instead: the records with
+   a value of any of them (split where those are more than ``max_gap_s`` apart), the
+   first field's beams the mission's own and the others' in :attr:`Mission.fields`,
+   NaN where a record lacks that field.
 """
 
 from __future__ import annotations
@@ -151,6 +155,7 @@ def read_mgd77(
     max_gap_s: float = DEFAULT_MAX_GAP_S,
     max_jump_m: float = DEFAULT_MAX_JUMP_M,
     frame: str | None = None,
+    joint: bool = False,
 ) -> list[Mission]:
     """Read an MGD77T trackline file as missions, one per continuous segment and field.
 
@@ -176,6 +181,11 @@ def read_mgd77(
         PROJ string of the metric frame (a map's projection); by default each segment
         gets a transverse-Mercator frame centred on it
         (:func:`geofix.maps.project.local_tmerc`), shared by its fields' missions.
+    joint : bool
+        One mission per segment holding every field of ``fields`` (the first its
+        ``kind`` and ``beams``, the others in ``Mission.fields``, NaN where a record
+        lacks one), over the records with a value of any of them; ``meta["fields"]``
+        names them and ``meta["field_pings"]`` counts each one's values.
 
     Returns
     -------
@@ -221,14 +231,17 @@ def read_mgd77(
     missions = []
     for index, segment in enumerate(segments):
         missions += _segment_missions(
-            track, segment, index, fields, frame, (min_segment_s, max_gap_s)
+            track, segment, index, fields, frame, (min_segment_s, max_gap_s), joint
         )
     if not missions:
         raise ConfigError(
             f"{path}: no {'/'.join(fields)} segment of at least {min_segment_s:g} s "
             f"(records with a position and a time: {track.record.size})"
         )
-    return [replace(m, name=f"{path.stem}-{m.kind}-{k}") for k, m in enumerate(missions)]
+    return [
+        replace(m, name=f"{path.stem}-{'+'.join([m.kind, *m.fields])}-{k}")
+        for k, m in enumerate(missions)
+    ]
 
 
 def longest_mission(path: str | Path, frame: str | None = None) -> Mission:
@@ -654,8 +667,9 @@ def _segment_missions(
     fields: tuple[str, ...],
     frame: str | None,
     limits: tuple[float, float],
+    joint: bool = False,
 ) -> list[Mission]:
-    """The missions of one segment: per field, its values split where they pause."""
+    """The missions of one segment: per field (or for all ``joint``), split where they pause."""
     from geofix.maps.project import frame_proj
 
     min_segment_s, max_gap_s = limits
@@ -667,23 +681,41 @@ def _segment_missions(
     heading = course_over_ground(xy)
     era, error_m = _navigation_era(float(segment.t[0]))
     missions = []
-    for name in fields:
-        value = track.values[name][rows]
-        has = np.flatnonzero(np.isfinite(value))
+    groups = [fields] if joint else [(name,) for name in fields]
+    for names in groups:
+        values = {name: track.values[name][rows] for name in names}
+        found = np.zeros(rows.size, dtype=bool)
+        for value in values.values():
+            found |= np.isfinite(value)
+        has = np.flatnonzero(found)
         cuts = np.flatnonzero(np.diff(segment.t[has]) > max_gap_s) + 1
         for part in np.split(has, cuts) if has.size else []:
             t = segment.t[part]
             if t[-1] - t[0] < min_segment_s or (min_segment_s > 0 and part.size < 2):
                 continue
+            name = names[0]
             column, _, units = FIELDS[name]
+            beams = {
+                kind: np.column_stack(
+                    [np.zeros((part.size, 2)), -value[part] if kind == "depth" else value[part]]
+                )[:, None, :]
+                for kind, value in values.items()
+            }
+            extra = {}
+            if joint:
+                extra = {
+                    "fields": list(names),
+                    "field_pings": {
+                        kind: int(np.isfinite(value[part]).sum()) for kind, value in values.items()
+                    },
+                }
             missions.append(
                 Mission(
                     times=t - t[0],
                     nav=xy[part],
                     heading=heading[part],
-                    beams=np.column_stack(
-                        [np.zeros((part.size, 2)), -value[part] if name == "depth" else value[part]]
-                    )[:, None, :],
+                    beams=beams[name],
+                    fields={kind: beams[kind] for kind in names[1:]},
                     nav_source="gnss",
                     truth=xy[part].copy(),
                     frame=seg_frame,
@@ -705,6 +737,7 @@ def _segment_missions(
                         "navigation": era,
                         "nav_error_m": error_m,
                         "file": track.counts,
+                        **extra,
                     },
                 )
             )
@@ -761,6 +794,66 @@ def field_segments(
             ) from None
         raise
     return field_name, missions
+
+
+def joint_segments(
+    path: str | Path, field_names, frame: str | None = None
+) -> tuple[str, list[Mission]]:
+    """The missions of several fields of an MGD77T file together, segments in time order.
+
+    What ``geofix replay --field depth --field gravity`` replays: :func:`read_mgd77`
+    with ``joint`` (the first field the primary, every record with a value of any field;
+    a field missing at a record is NaN there) and the default limits.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The ``.m77t`` file.
+    field_names : sequence of {"depth", "gravity", "magnetic"}
+        The channels, the primary first, each once.
+    frame : str, optional
+        PROJ string of the metric frame (a map's projection).
+
+    Returns
+    -------
+    tuple
+        ``("depth+gravity", missions)``: the label of the fields and their missions;
+        segment ``N`` of ``geofix replay --segment N`` is ``missions[N]``.
+
+    Raises
+    ------
+    ConfigError
+        An unknown or repeated field, a file without a field's column, no segment of the
+        fields as long as :data:`DEFAULT_MIN_SEGMENT_S`, or a reader's error.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"MGD77T file not found: {path}")
+    names = tuple(field_names)
+    unknown = [f for f in names if f not in FIELDS]
+    if not names or unknown:
+        raise ConfigError(
+            f"unknown --field {', '.join(map(repr, unknown)) or '(none)'}; "
+            f"choose from {', '.join(FIELDS)}"
+        )
+    if len(set(names)) != len(names):
+        raise ConfigError(f"--field names a channel twice: {', '.join(names)}")
+    header = _header(path)
+    for name in names:
+        column = FIELDS[name][0]
+        if column not in header:
+            raise ConfigError(f"{path.name} has no {name} ({column} column): try another --field")
+    label = "+".join(names)
+    try:
+        missions = read_mgd77(path, fields=names, frame=frame, joint=True)
+    except ConfigError as exc:
+        if "segment of at least" in str(exc):
+            raise ConfigError(
+                f"{path.name} has no {label} segment of at least "
+                f"{DEFAULT_MIN_SEGMENT_S / 3600:g} h: try other --field channels"
+            ) from None
+        raise
+    return label, missions
 
 
 def pick_segment(missions: list[Mission], segment: int | None, label: str = "") -> Mission:

@@ -6,7 +6,9 @@ them) and the ping's beams as body-frame offsets ``(across, along)`` plus the me
 value, in map units and with the map's sign (elevation: negative below sea level). Where
 the log has an independent truth (a simulated mission, a post-processed track) it is kept
 beside the navigation; where the navigation itself comes from GNSS (a surface ship) the
-navigation *is* the truth (``nav_source == "gnss"``).
+navigation *is* the truth (``nav_source == "gnss"``). A mission of several fields (a
+ship's depths and gravity anomalies) keeps the further fields' beams beside the primary
+field's (:attr:`Mission.fields`), NaN where a ping has no reading of a field.
 """
 
 from __future__ import annotations
@@ -52,11 +54,16 @@ class Mission:
     start_utc : float or None
         UTC time of ``times == 0``, seconds since 1970-01-01.
     kind : str
-        Field measured: ``"depth"`` or ``"gravity"``.
+        Field measured: ``"depth"``, ``"gravity"`` or ``"magnetic"`` (the primary field,
+        whose beams are ``beams``).
     name : str
         Short name for tables and figures.
     meta : dict
         Provenance (source file, reader, counts).
+    fields : dict
+        The further fields measured at the same pings: kind (other than ``kind``) ->
+        ``(n, b_k, 3)`` beams ``(across_m, along_m, value)`` as ``beams``, in that field's
+        units (NaN rows: no reading). ``{}``: the one field.
     """
 
     times: np.ndarray
@@ -74,6 +81,7 @@ class Mission:
     kind: str = "depth"
     name: str = "mission"
     meta: dict = field(default_factory=dict)
+    fields: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         n = np.asarray(self.times).shape[0] if np.ndim(self.times) == 1 else -1
@@ -94,6 +102,14 @@ class Mission:
             _check(who, "velocity", self.velocity, (n, 2), finite=False)
         if self.sigma_position is not None:
             _check(who, "sigma_position", self.sigma_position, (n,))
+        for kind, extra in self.fields.items():
+            extra = np.asarray(extra, dtype=float)
+            if kind == self.kind:
+                raise ConfigError(f"{who}: further field {kind!r} is the primary field")
+            if extra.ndim != 3 or extra.shape[0] != n or extra.shape[2] != 3:
+                raise ConfigError(
+                    f"{who}: field {kind!r} has shape {extra.shape}, expected ({n}, b, 3)"
+                )
         times = np.asarray(self.times, dtype=float)
         if not np.isfinite(times).all() or np.any(np.diff(times) < 0):
             raise ConfigError(f"{who}: times must be finite and non-decreasing")
@@ -160,6 +176,7 @@ class Mission:
             pitch=cut_optional(self.pitch),
             velocity=cut_optional(self.velocity),
             sigma_position=cut_optional(self.sigma_position),
+            fields={kind: cut(extra) for kind, extra in self.fields.items()},
         )
 
 
