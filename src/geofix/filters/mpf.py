@@ -96,6 +96,10 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from geofix.errors import ConfigError, MatchError
+from geofix.filters._fields import (
+    taken_offsets,
+    update_particle_fields,
+)
 from geofix.filters._weights import (
     RESAMPLE_COPIES,
     effective_sample_size,
@@ -404,42 +408,7 @@ class Mpf(ParticleSettings):
 
     def _update_fields(self, state: MpfState, obs: Observation, grid: Grid, rng, fields):
         """The primary ping (when it has a value) and every further field's, summed."""
-        primary = bool(np.isfinite(obs.values).any())
-        valid = [bool(np.isfinite(o.values).any()) for o, _ in fields]
-        if not (primary or any(valid)):
-            return state
-        if primary and self.carries_offset and state.offset is None:
-            state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
-        state = replace(state, field_offsets=_started(self, state, fields))
-        model = self.likelihood
-
-        def likelihood(current: MpfState) -> np.ndarray:
-            total = np.zeros(current.log_weight.shape)
-            if primary:
-                total = total + model.particles(
-                    grid, obs, current.positions, current.spacing, current.cell, current.offset, rng
-                )
-            for i, (field_obs, field_grid) in enumerate(fields):
-                if valid[i]:
-                    total = total + model.particles(
-                        field_grid,
-                        field_obs,
-                        current.positions,
-                        current.spacing,
-                        field_grid.cell_size,
-                        current.field_offsets[i],
-                        rng,
-                    )
-            return total
-
-        state, reads = self.progressive.apply(state, likelihood, self._spread_copies, rng)
-        if primary and state.offset is not None:
-            state = replace(state, offset=state.offset.updated(grid, state.positions, obs))
-        learnt = tuple(
-            o if o is None or not ok else o.updated(g, state.positions, fo)
-            for o, ok, (fo, g) in zip(state.field_offsets, valid, fields, strict=True)
-        )
-        return replace(state, evaluations=state.evaluations + reads, field_offsets=learnt)
+        return update_particle_fields(self, state, obs, grid, rng, fields, _points)
 
     def _spread_copies(self, state: MpfState, rng) -> MpfState:
         """Resample (same count) and spread each copy over its original's square share."""
@@ -456,7 +425,7 @@ class Mpf(ParticleSettings):
             log_weight=np.full(count, -np.log(count)),
             resamples=state.resamples + 1,
             offset=None if state.offset is None else state.offset.take(index),
-            field_offsets=_taken(state.field_offsets, index),
+            field_offsets=taken_offsets(state.field_offsets, index),
         )
 
     def mode(self, state: MpfState) -> np.ndarray:
@@ -566,32 +535,13 @@ class Mpf(ParticleSettings):
             spacing=spacing,
             resamples=state.resamples + 1,
             offset=None if state.offset is None else state.offset.take(index),
-            field_offsets=_taken(state.field_offsets, index),
+            field_offsets=taken_offsets(state.field_offsets, index),
         )
 
 
-def _field_offset(state, field: int):
-    """Further field ``field``'s hypothesis offsets of a state (None without any)."""
-    return state.field_offsets[field] if field < len(state.field_offsets) else None
-
-
-def _taken(field_offsets: tuple, index) -> tuple:
-    """Every further field's hypothesis offsets of the hypotheses ``index``."""
-    return tuple(None if o is None else o.take(index) for o in field_offsets)
-
-
-def _started(filt, state, fields) -> tuple:
-    """Every further field's hypothesis offsets, started at its first ping that asks for one.
-
-    A field's offset is carried per hypothesis when the filter carries offsets and its
-    ping says so (``bias_per_hypothesis``, the stepper's choice for pings of fewer than
-    three beams); None otherwise.
-    """
-    out = list(state.field_offsets) + [None] * (len(fields) - len(state.field_offsets))
-    for i, (field_obs, _) in enumerate(fields):
-        if out[i] is None and filt.carries_offset and np.isfinite(field_obs.values).any():
-            out[i] = HypothesisOffset.start(state.log_weight.shape, field_obs)
-    return tuple(out)
+def _points(state: MpfState) -> np.ndarray:
+    """The ``(M, 2)`` positions of a state, metres."""
+    return state.positions
 
 
 #: Range of Mardia's kurtosis of the particle positions within which the set is taken as

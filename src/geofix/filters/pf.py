@@ -53,6 +53,11 @@ import numpy as np
 
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _particle_kernels as kernels
+from geofix.filters._fields import (
+    field_offset,
+    taken_offsets,
+    update_particle_fields,
+)
 from geofix.filters._weights import (
     RESAMPLE_COPIES,
     ProgressiveCorrection,
@@ -246,7 +251,7 @@ class ParticleSettings(RecursiveFilter):
 
         ``field``: that further field's offset (its index in ``fields``) instead.
         """
-        offset = state.offset if field is None else _field_offset(state, field)
+        offset = state.offset if field is None else field_offset(state, field)
         return None if offset is None else offset.moments(state.weights)
 
 
@@ -406,42 +411,7 @@ class Pf(ParticleSettings):
 
     def _update_fields(self, state: PfState, obs: Observation, grid: Grid, rng, fields):
         """The primary ping (when it has a value) and every further field's, summed."""
-        primary = bool(np.isfinite(obs.values).any())
-        valid = [bool(np.isfinite(o.values).any()) for o, _ in fields]
-        if not (primary or any(valid)):
-            return state
-        if primary and self.carries_offset and state.offset is None:
-            state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
-        state = replace(state, field_offsets=_started(self, state, fields))
-        model = self.likelihood
-
-        def likelihood(current: PfState) -> np.ndarray:
-            total = np.zeros(current.log_weight.shape)
-            if primary:
-                total = total + model.particles(
-                    grid, obs, current.particles, current.spacing, current.cell, current.offset, rng
-                )
-            for i, (field_obs, field_grid) in enumerate(fields):
-                if valid[i]:
-                    total = total + model.particles(
-                        field_grid,
-                        field_obs,
-                        current.particles,
-                        current.spacing,
-                        field_grid.cell_size,
-                        current.field_offsets[i],
-                        rng,
-                    )
-            return total
-
-        state, reads = self.progressive.apply(state, likelihood, self._spread_copies, rng)
-        if primary and state.offset is not None:
-            state = replace(state, offset=state.offset.updated(grid, state.particles, obs))
-        learnt = tuple(
-            o if o is None or not ok else o.updated(g, state.particles, fo)
-            for o, ok, (fo, g) in zip(state.field_offsets, valid, fields, strict=True)
-        )
-        return replace(state, evaluations=state.evaluations + reads, field_offsets=learnt)
+        return update_particle_fields(self, state, obs, grid, rng, fields, _points)
 
     def _spread_copies(self, state: PfState, rng) -> PfState:
         """Resample (same count) and spread each copy uniformly over its original's share."""
@@ -454,7 +424,7 @@ class Pf(ParticleSettings):
             log_weight=np.full(count, -np.log(count)),
             resamples=state.resamples + 1,
             offset=None if state.offset is None else state.offset.take(index),
-            field_offsets=_taken(state.field_offsets, index),
+            field_offsets=taken_offsets(state.field_offsets, index),
         )
 
     def estimate(self, state: PfState) -> tuple[np.ndarray, np.ndarray]:
@@ -491,32 +461,13 @@ class Pf(ParticleSettings):
             spacing=spacing,
             resamples=state.resamples + 1,
             offset=None if state.offset is None else state.offset.take(index),
-            field_offsets=_taken(state.field_offsets, index),
+            field_offsets=taken_offsets(state.field_offsets, index),
         )
 
 
-def _field_offset(state, field: int):
-    """Further field ``field``'s hypothesis offsets of a state (None without any)."""
-    return state.field_offsets[field] if field < len(state.field_offsets) else None
-
-
-def _taken(field_offsets: tuple, index) -> tuple:
-    """Every further field's hypothesis offsets of the hypotheses ``index``."""
-    return tuple(None if o is None else o.take(index) for o in field_offsets)
-
-
-def _started(filt, state, fields) -> tuple:
-    """Every further field's hypothesis offsets, started at its first ping that asks for one.
-
-    A field's offset is carried per hypothesis when the filter carries offsets and its
-    ping says so (``bias_per_hypothesis``, the stepper's choice for pings of fewer than
-    three beams); None otherwise.
-    """
-    out = list(state.field_offsets) + [None] * (len(fields) - len(state.field_offsets))
-    for i, (field_obs, _) in enumerate(fields):
-        if out[i] is None and filt.carries_offset and np.isfinite(field_obs.values).any():
-            out[i] = HypothesisOffset.start(state.log_weight.shape, field_obs)
-    return tuple(out)
+def _points(state: PfState) -> np.ndarray:
+    """The ``(M, 2)`` positions of a state, metres."""
+    return state.particles
 
 
 __all__ = ["ParticleSettings", "Pf", "PfState"]
