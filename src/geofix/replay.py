@@ -254,7 +254,8 @@ def map_in_frame(grid: Grid, frame: str | None, where: str = "map") -> Grid:
         raise ConfigError(str(exc).splitlines()[0]) from None
     x0, y0 = float(np.min(x)), float(np.min(y))
     gx, gy = np.meshgrid(x0 + cell * np.arange(nx), y0 + cell * np.arange(ny))
-    values = grid.sample(*source(*target(gx, gy, inverse=True)), method="bilinear")
+    east, north = source(*target(gx, gy, inverse=True))
+    values = grid.sample(east, north, method="bilinear")
     meta = {**grid.meta, "projection": frame, "resampled_from": own}
     return replace(grid, values=values, x0=x0, y0=y0, dx=cell, dy=cell, meta=meta)
 
@@ -1066,33 +1067,33 @@ def replay_log(
         prepare_out_dir(out_dir)
     map_error = None
     names = _names(field_name)
-    paths = _names(map_path)
-    if len(names) > 1 and len(paths) != len(names):
+    maps = _names(map_path)
+    if len(names) > 1 and len(maps) != len(names):
         raise ConfigError(
             f"replay: give one --map per --field, in the same order (got {len(names)} --field "
-            f"and {len(paths)} --map)"
+            f"and {len(maps)} --map)"
         )
     if len(set(names)) != len(names):
         raise ConfigError(f"replay: --field names a channel twice: {', '.join(names)}")
-    if len(paths) > 1 and len(names) < 2:
+    if len(maps) > 1 and len(names) < 2:
         raise ConfigError(
             "replay: several --map need an MGD77T log and one --field per map, in the same "
             "order (the first the primary)"
         )
     field_grids: tuple[Grid, ...] = ()
-    if not paths:
+    if not maps:
         if not str(log).lower().endswith((".nc", ".nc4")):
             raise ConfigError("replay: --map is required unless the log is a geofix export")
         mission, grid = read_exported(log, trial=trial)
     else:
-        primary = paths[0]
+        primary = maps[0]
         grid = load_grid(primary)
         map_error = load_map_error(primary) if not str(primary).startswith("builtin:") else None
         frame = grid.meta.get("projection")
         if frame is not None:
             frame_proj(frame, f"map {primary}")
-        field_grids = load_field_maps(paths[1:], grid)
-        for name, path, further in zip(names[1:], paths[1:], field_grids, strict=True):
+        field_grids = load_field_maps(maps[1:], grid)
+        for name, path, further in zip(names[1:], maps[1:], field_grids, strict=True):
             if further.kind != name:
                 raise ConfigError(
                     f"replay: --field {name} needs a {name} map; map {path} is a {further.kind} map"

@@ -390,7 +390,8 @@ class Pmf(RecursiveFilter):
 
     def _update_fields(self, state: PmfState, obs: Observation, grid: Grid, fields) -> PmfState:
         """The primary ping (when it has a value) and every further field's, summed."""
-        ll, offset = 0.0, state.offset
+        ll: np.ndarray | float = 0.0
+        offset = state.offset
         if np.isfinite(obs.values).any():
             if self.carries_offset and state.offset is None:
                 state = replace(state, offset=HypothesisOffset.start(state.shape, obs))

@@ -418,7 +418,7 @@ class Navigator:
                 f"ping: {len(fields)} further field readings, the navigator has "
                 f"{len(self.field_grids)} further maps"
             )
-        out = []
+        out: list[tuple] = []
         steppers = self._stepper.fields
         for i, stepper in enumerate(steppers):
             obs = fields[i] if fields else None

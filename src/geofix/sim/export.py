@@ -232,7 +232,7 @@ def _field_vars(trials: list[Trial], i: int, field_map: Grid) -> tuple[dict, dic
         f"{name}_y": (f"{name}_y", field_map.y, {"units": "m"}),
     }
     if first.unlagged_measured is not None:
-        stacked = np.stack([f.unlagged_measured for f in fields])
+        stacked = np.stack([np.asarray(f.unlagged_measured) for f in fields])
         what = _attrs(f"field {i} reading before the lag", units)
         data[f"{name}_unlagged_measured"] = (("trial", "sample", beam), stacked, what)
     if first.sensed is not None:

@@ -173,9 +173,9 @@ class Scenario(Strict):
     """
 
     name: str
-    map: MapSpec | None = None
+    map: MapSpec
     track: TrackSpec
-    sensor: SensorSpec | None = None
+    sensor: SensorSpec
     sensors: list[FieldSpec] | None = None
     ins: InsSpec = InsSpec()
     dvl: DvlSpec | None = None
@@ -191,15 +191,33 @@ class Scenario(Strict):
             raise ValueError("must not be empty")
         return v
 
-    @model_validator(mode="after")
-    def _sensors_fill_the_primary_field(self) -> Scenario:
-        if self.sensors is None:
-            missing = [k for k in ("map", "sensor") if getattr(self, k) is None]
+    @model_validator(mode="before")
+    @classmethod
+    def _primary_blocks_from_sensors(cls, data):
+        # the first entry of a sensors: list stands for the map: and sensor: blocks when
+        # they are not given (given, they must equal it: checked once parsed)
+        if not isinstance(data, dict):
+            return data
+        entries = data.get("sensors")
+        if entries is None:
+            missing = [k for k in ("map", "sensor") if data.get(k) is None]
             if missing:
                 raise ValueError(f"{' and '.join(missing)} required (or a sensors: list of fields)")
-            return self
-        if not self.sensors:
+            return data
+        if isinstance(entries, list) and not entries:
             raise ValueError("sensors: the list is empty; give at least one {map, sensor}")
+        if not isinstance(entries, list) or not isinstance(entries[0], dict):
+            return data
+        filled = dict(data)
+        for key in ("map", "sensor"):
+            if filled.get(key) is None and key in entries[0]:
+                filled[key] = entries[0][key]
+        return filled
+
+    @model_validator(mode="after")
+    def _sensors_fill_the_primary_field(self) -> Scenario:
+        if not self.sensors:
+            return self
         first = self.sensors[0]
         for key in ("map", "sensor", "seabed"):
             given, entry = getattr(self, key), getattr(first, key)
@@ -232,7 +250,6 @@ class Scenario(Strict):
         if self.sensors is not None:
             first = self.sensors[0].model_copy(update={"seabed": self.seabed})
             return [first, *self.sensors[1:]]
-        assert self.map is not None and self.sensor is not None  # checked on validation
         return [FieldSpec(map=self.map, sensor=self.sensor, seabed=self.seabed)]
 
     def field_map_path(self, index: int) -> str:

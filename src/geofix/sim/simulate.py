@@ -228,10 +228,10 @@ def check_sensor_fits_map(scenario: Scenario, grid: Grid) -> None:
 
 def _check_kind(sensor: SensorSpec, grid: Grid, key: str, kind_key: str) -> None:
     """Raise ConfigError unless ``sensor`` reads the field of ``grid`` (keys for the message)."""
-    sensor, needs = sensor.type, sensor.kind
+    name, needs = sensor.type, sensor.kind
     if grid.kind != needs:
         raise ConfigError(
-            f"{key} {sensor} needs a {needs} map, but map {grid.name!r} is a "
+            f"{key} {name} needs a {needs} map, but map {grid.name!r} is a "
             f"{grid.kind} map; set {kind_key}: {needs} if the file holds {needs}"
         )
 
