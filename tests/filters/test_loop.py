@@ -5,7 +5,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from geofix.filters.base import Observation
+from geofix.filters.base import Observation, RecursiveFilter
 from geofix.filters.loop import FilterSettings, FilterStepper
 
 
@@ -14,8 +14,10 @@ class _State:
     mean: np.ndarray
 
 
-class _Shift:
+class _Shift(RecursiveFilter):
     """A filter whose update moves its mean by the first reading (NaN poisons it)."""
+
+    name = "shift"
 
     def initialize(self, problem, rng):
         return _State(np.asarray(problem.indicated[0], dtype=float))

@@ -23,6 +23,7 @@ from typing import ClassVar
 import numpy as np
 
 from geofix.filters.loop import FilterSettings, FilterStepper
+from geofix.filters.state import state_mode
 from geofix.maps.grid import Grid
 from geofix.measurement import lag_compensated
 from geofix.problem import Fix, MatchProblem
@@ -113,12 +114,24 @@ class RecursiveFilter:
       (:mod:`geofix.filters.nuisance`; ``pmf``, ``pf`` and ``mpf`` take it as a
       setting);
     - ``carries_offset``: False; True when each point of the state carries its own
-      common offset (``map_model=imperfect``).
+      common offset (``map_model=imperfect``);
+    - ``fuses_fields``: False; True for a filter that weighs further fields beside the
+      primary one (``pmf``, ``pf``, ``mpf``);
+    - ``mode(state)``: the state's mode.
     """
 
     name: ClassVar[str]
     recursive: ClassVar[bool] = True
+    fuses_fields: ClassVar[bool] = False
     map_model: str = "exact"
+
+    def mode(self, state) -> np.ndarray:
+        """The position ``(2,)`` the filter reports as its most likely one, metres.
+
+        The state's mode (:func:`geofix.filters.state.state_mode`); a filter may report
+        another (:meth:`geofix.filters.mpf.Mpf.mode`: the weighted mean).
+        """
+        return state_mode(self, state)
 
     @property
     def needs_ins_model(self) -> bool:
@@ -137,6 +150,10 @@ class RecursiveFilter:
     def is_ambiguous(self, state) -> bool:
         """Integrity flag of a state (default: never)."""
         return False
+
+    def offset_moments(self, state) -> tuple[float, float] | None:
+        """Mean and variance of the points' own offsets, map units (default: none carried)."""
+        return None
 
 
 def motions(problem: MatchProblem) -> list[Motion]:
@@ -214,7 +231,7 @@ def run_filter(filt, problem: MatchProblem, rng: np.random.Generator) -> Fix:
         track=means,
         covariance=covs[-1],
         cost=float("nan"),
-        evaluations=int(getattr(state, "evaluations", 0)),
+        evaluations=int(state.evaluations),
         ambiguous=bool(filt.is_ambiguous(state)),
         diagnostics={"covariances": covs},
     )

@@ -33,7 +33,7 @@ fields (SITAN) uses the primary field alone.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -48,6 +48,7 @@ from geofix.filters.nuisance import (
     read_at_points,
     representation_std,
 )
+from geofix.filters.state import SteppedFilter
 from geofix.maps.grid import Grid
 from geofix.measurement import lag_compensated, map_error_variance
 
@@ -151,15 +152,17 @@ class FilterStepper:
         Source of every random draw of the filter (None only for deterministic filters).
     """
 
-    def __init__(self, filt, grid: Grid, settings: FilterSettings | None = None, rng=None):
-        self.filter = filt
+    def __init__(
+        self, filt: SteppedFilter, grid: Grid, settings: FilterSettings | None = None, rng=None
+    ):
+        self.filter: Any = filt  # its steps are typed by each filter's own state
         settings = settings or FilterSettings()
-        self.settings = settings.for_map_model(getattr(filt, "map_model", "exact"))
+        self.settings = settings.for_map_model(filt.map_model)
         if grid.interpolation != self.settings.interpolation:
             grid = replace(grid, interpolation=self.settings.interpolation)
         self.grid = grid
         self.rng = rng
-        self.state = None
+        self.state: Any = None
         self._representation: Grid | None = None  # the map's representation error, on use
         self._last_ping_at: np.ndarray | None = None  # indicated position of the last ping
         self.fields: tuple[FilterStepper, ...] = ()  # one per further field (start)
@@ -178,7 +181,7 @@ class FilterStepper:
         self.state = self.filter.initialize(problem, self.rng)
         self.reset_nuisance(float(problem.times[0]))
         self.fields, self._field_obs = (), ()
-        if problem.fields and getattr(self.filter, "fuses_fields", False):
+        if problem.fields and self.filter.fuses_fields:
             self._start_fields(problem)
 
     def _start_fields(self, problem: MatchProblem) -> None:
@@ -402,9 +405,7 @@ class FilterStepper:
         errors are not one offset, so those pings use the one common offset.
         """
         return (
-            bool(getattr(self.filter, "carries_offset", False))
-            and self.offset.active
-            and bool(self._profile_offset)
+            bool(self.filter.carries_offset) and self.offset.active and bool(self._profile_offset)
         )
 
     def _for_filter(self, weighed: Observation) -> Observation:

@@ -42,6 +42,32 @@ class FilterState(Protocol):
         ...
 
 
+class SteppedFilter(Protocol):
+    """What the plain filter loop reads of a recursive filter besides its steps.
+
+    The steps themselves (``initialize``, ``predict``, ``update``, ``estimate``) differ in
+    their state types from filter to filter and are called as they are.
+
+    :class:`geofix.filters.base.RecursiveFilter` declares each with its default.
+    """
+
+    map_model: str
+
+    @property
+    def fuses_fields(self) -> bool:
+        """The filter weighs further fields beside the primary one."""
+        ...
+
+    @property
+    def carries_offset(self) -> bool:
+        """Each point of the state carries its own common offset."""
+        ...
+
+    def mode(self, state) -> np.ndarray:
+        """The position ``(2,)`` the filter reports as its most likely one, metres."""
+        ...
+
+
 def mode_position(filt, state) -> np.ndarray:
     """MLE position ``(2,)`` of a filter state, metres.
 
@@ -57,12 +83,22 @@ def mode_position(filt, state) -> np.ndarray:
     state : FilterState
         Its current state.
     """
-    mode = getattr(filt, "mode", None)  # a filter may report its own
-    if callable(mode):
-        return np.asarray(mode(state), dtype=float)
+    return np.asarray(filt.mode(state), dtype=float)
+
+
+def state_mode(filt, state) -> np.ndarray:
+    """The state's own :meth:`FilterState.mode`, else the filter's estimated mean (metres).
+
+    Parameters
+    ----------
+    filt : RecursiveFilter
+        The filter of the state.
+    state : FilterState
+        Its current state.
+    """
     if isinstance(state, FilterState):
         return np.asarray(state.mode(), dtype=float)
     return np.asarray(filt.estimate(state)[0], dtype=float)
 
 
-__all__ = ["FilterState", "mode_position"]
+__all__ = ["FilterState", "SteppedFilter", "mode_position", "state_mode"]

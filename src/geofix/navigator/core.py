@@ -820,7 +820,7 @@ def _field_grids(grid: Grid, field_grids, filt, method) -> tuple[Grid, ...]:
             f"navigator: one map per field kind; {', '.join(repeated)} is given twice "
             f"(maps of kinds {', '.join(kinds)})"
         )
-    if not getattr(filt, "fuses_fields", False):
+    if not filt.fuses_fields:
         label = method if isinstance(method, str) else filt.name
         raise ConfigError(
             f"navigator: method {label!r} weighs one field only; several fields need a "
