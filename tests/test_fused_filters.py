@@ -79,15 +79,21 @@ PF_FUSED_GAP = pytest.mark.xfail(
     "spec", ["pmf", pytest.param("pf", marks=PF_FUSED_GAP), "mpf", "pmf:model=errstate"]
 )
 def test_two_fields_fix_what_neither_fixes_alone(spec, monkeypatch):
-    ends = {}
+    """Each plane alone leaves one axis open (flagged ambiguous); both close it."""
+    ends, flagged = {}, {}
     for kinds in (("depth",), ("gravity",), ("depth", "gravity")):
         scen, grid = scenario(kinds, monkeypatch)
-        errors = []
+        errors, flags = [], []
         for i in range(2):
             trial = simulate_trial(scen, grid, i)
             result = run_trial(parse_method_spec(spec), trial, grid, method_rng(8, i, spec))
             errors.append(result.error[-1])
+            flags.append(result.ambiguous)
         ends[kinds] = float(np.sqrt(np.mean(np.square(errors))))
+        flagged[kinds] = flags
+    # where each single field is flagged ambiguous, the fused fix is not
+    assert all(flagged[("depth",)]) and all(flagged[("gravity",)]), flagged
+    assert not any(flagged[("depth", "gravity")]), flagged
     fused = ends[("depth", "gravity")]
     assert fused < 40.0, ends
     assert fused < 0.5 * min(ends[("depth",)], ends[("gravity",)]), ends
