@@ -453,18 +453,7 @@ def load_exported(path: str | Path) -> tuple[Grid, list[Trial]]:
 
 
 def _grid_from(ds) -> Grid:
-    a = ds.attrs
-    return Grid(
-        ds["z"].values,
-        x0=float(a["grid_x0"]),
-        y0=float(a["grid_y0"]),
-        dx=float(a["grid_dx"]),
-        dy=float(a["grid_dy"]),
-        kind=str(a["grid_kind"]),
-        units=str(a["grid_units"]),
-        name=str(a["grid_name"]),
-        meta=json.loads(a["grid_meta_json"]),
-    )
+    return _grid_of(ds.attrs, ds["z"].values)
 
 
 def _prior_from(ds, k: int, grid: Grid) -> Grid:
@@ -485,7 +474,11 @@ def _prior_from(ds, k: int, grid: Grid) -> Grid:
 
 
 def _attr_grid(ds, var: str, values) -> Grid:
-    a = ds[var].attrs
+    return _grid_of(ds[var].attrs, values)
+
+
+def _grid_of(a, values) -> Grid:
+    """A map from ``values`` and the ``grid_*`` attributes ``a`` it was exported with."""
     return Grid(
         values,
         x0=float(a["grid_x0"]),

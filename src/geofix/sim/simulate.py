@@ -236,6 +236,30 @@ def _check_kind(sensor: SensorSpec, grid: Grid, key: str, kind_key: str) -> None
         )
 
 
+def _sense(grid: Grid, draw, true, offsets, sensor: SensorSpec, rng, what: str):
+    """``(measured, unlagged)`` of one field along the true track, map units.
+
+    Read on the drawn seabed when there is one (with its per-reading offsets), else on
+    ``grid``; a reading that is not finite is a :class:`TrackOffMapError` naming ``what``.
+    """
+    measured, unlagged = measure_with_unlagged(
+        grid if draw is None else draw.sensed,
+        true.positions,
+        true.heading,
+        offsets,
+        sensor,
+        rng,
+        true.times,
+    )
+    if draw is not None:
+        measured = measured + draw.reading_offsets[:, None]
+        unlagged = unlagged + draw.reading_offsets[:, None]
+    if not np.all(np.isfinite(measured)):
+        k = int(np.argmax(~np.isfinite(measured).all(axis=1)))
+        raise TrackOffMapError(f"true track: {what} not finite at sample {k}")
+    return measured, unlagged
+
+
 def _true_track(scenario: Scenario, grid: Grid, rng: np.random.Generator) -> TrueTrajectory:
     track = scenario.track
     jitter = rng.uniform(-track.start_jitter_m, track.start_jitter_m, 2)
@@ -327,21 +351,9 @@ def simulate_trial(scenario: Scenario, grid: Grid, index: int) -> Trial:
     check_track_on_map(grid, footprints, "true track")
     ins = simulate_ins(true, scenario.ins, ins_rng, scenario.dvl)
     draw = _draw_seabed(scenario, grid, seabed_rng, footprints, true.times)
-    measured, unlagged = measure_with_unlagged(
-        grid if draw is None else draw.sensed,
-        true.positions,
-        true.heading,
-        offsets,
-        scenario.sensor,
-        sensor_rng,
-        true.times,
+    measured, unlagged = _sense(
+        grid, draw, true, offsets, scenario.sensor, sensor_rng, "measurement"
     )
-    if draw is not None:
-        measured = measured + draw.reading_offsets[:, None]
-        unlagged = unlagged + draw.reading_offsets[:, None]
-    if not np.all(np.isfinite(measured)):
-        k = int(np.argmax(~np.isfinite(measured).all(axis=1)))
-        raise TrackOffMapError(f"true track: measurement not finite at sample {k}")
     sensor = scenario.sensor
     return Trial(
         truth=true.positions,
@@ -401,21 +413,9 @@ def _simulate_field(
         )
     check_track_on_map(grid, footprints, f"true track on the {which} map")
     draw = _draw(spec.seabed, grid, seabed_rng, footprints, true.times)
-    measured, unlagged = measure_with_unlagged(
-        grid if draw is None else draw.sensed,
-        true.positions,
-        true.heading,
-        offsets,
-        spec.sensor,
-        sensor_rng,
-        true.times,
+    measured, unlagged = _sense(
+        grid, draw, true, offsets, spec.sensor, sensor_rng, f"{which} measurement"
     )
-    if draw is not None:
-        measured = measured + draw.reading_offsets[:, None]
-        unlagged = unlagged + draw.reading_offsets[:, None]
-    if not np.all(np.isfinite(measured)):
-        k = int(np.argmax(~np.isfinite(measured).all(axis=1)))
-        raise TrackOffMapError(f"true track: {which} measurement not finite at sample {k}")
     sensor = spec.sensor
     lagged = sensor.lag_s > 0
     return TrialField(
