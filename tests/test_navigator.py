@@ -46,7 +46,7 @@ def test_navigator_steps_are_the_campaign_steps_bit_for_bit(small_mission, tmp_p
     mission, grid = read_exported(path)
     trial = load_exported(path)[1][0]
     problem = trial.problem(grid)
-    for method in ("pmf", "pf", "sitan"):
+    for method in ("pmf:model=rw", "pf:model=rw", "sitan"):  # the campaign has an INS model
         fix = parse_method_spec(method).match(problem, np.random.default_rng(9))
         nav = Navigator(grid, method, NavigatorSettings.passive(), seed=9)
         inputs = ReplayInput(mission.nav, mission.heading, mission.sigma_position, mission.truth)

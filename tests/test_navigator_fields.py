@@ -78,7 +78,7 @@ def drive_problem(nav: Navigator, problem, with_fields: bool = True):
     return out
 
 
-@pytest.mark.parametrize("method", ["pmf", "pf"])
+@pytest.mark.parametrize("method", ["pmf:model=rw", "pf:model=rw"])  # the campaign has an INS
 def test_navigator_fuses_fields_as_the_campaign_filter_bit_for_bit(fused_problem, method):
     problem = fused_problem
     assert [f.kind for f in problem.fields] == ["gravity"]

@@ -83,7 +83,7 @@ def _rms(rows):
 
 def test_error_state_filters_follow_a_drifting_ins_far_better_than_the_random_walk_ones():
     scen = _drift_scenario()
-    specs = ["pf:particles=2000", "mpf:particles=2000", "pmf:model=errstate"]
+    specs = ["pf:particles=2000,model=rw", "mpf:particles=2000", "pmf:model=errstate"]
     out, crlb = _run(scen, specs, 8)
     pf, mpf, pmf = (_rms(out[s]) for s in specs)
     # the bound on this mission is about 35 m; the random-walk PF ends near 5x that

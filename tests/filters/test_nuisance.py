@@ -8,12 +8,16 @@ import pytest
 from geofix.errors import ConfigError
 from geofix.filters.base import Observation
 from geofix.filters.nuisance import (
+    MAX_PINGS_PER_ERROR,
+    REPRESENTATION_SHARE,
     CommonOffset,
+    PointReads,
     ResidualScale,
     check_map_model,
     correlated_share,
     read_at_points,
     representation_std,
+    unscented_points,
 )
 from geofix.maps.grid import Grid
 from geofix.methods import parse_method_spec
@@ -35,7 +39,7 @@ def test_a_plane_has_no_representation_error_and_a_parabola_its_known_one():
     u = np.arange(40, dtype=float)
     parabola = _grid(np.tile(u**2, (40, 1)))
     inner = representation_std(parabola).values[5:-5, 5:-5]
-    assert inner == pytest.approx(0.5 * np.sqrt(2.0 / 9.0), rel=1e-9)
+    assert inner == pytest.approx(REPRESENTATION_SHARE * np.sqrt(2.0 / 9.0), rel=1e-9)
 
 
 def test_beams_closer_than_a_cell_share_one_map_error():
@@ -45,7 +49,9 @@ def test_beams_closer_than_a_cell_share_one_map_error():
     assert correlated_share(np.zeros((1, 2)), 50.0) == 1.0
     # pings 10 m apart on 50 m cells read the same map error five times
     assert correlated_share(offsets, 50.0, step_m=10.0) == pytest.approx(5 * 61 / 5)
-    assert correlated_share(np.zeros((1, 2)), 50.0, step_m=0.0) == 10.0  # at most ten
+    # a vehicle at rest counts one map error at most MAX_PINGS_PER_ERROR times
+    assert correlated_share(np.zeros((1, 2)), 50.0, step_m=0.0) == MAX_PINGS_PER_ERROR
+    assert correlated_share(np.zeros((1, 2)), 500.0, step_m=10.0) == 50.0
 
 
 def _ping(grid: Grid, position, values_shift: float, rng, noise: float) -> Observation:
@@ -92,6 +98,29 @@ def test_the_residual_scale_finds_an_underdeclared_noise_and_keeps_a_right_one(r
         # a memory of 50 pings x 7 beams: the factor's sampling sd is about 8 %
         assert scale.factor == pytest.approx(expected, rel=0.25)
         assert float(np.asarray(scale.scaled(obs).noise_var)) == pytest.approx(0.25 * scale.factor)
+
+
+def _consistent_single_beams(rng, true_factor: float, sd_position: float) -> list[float]:
+    """The factor over 1500 one-beam pings on a slope, truth drawn from the posterior."""
+    slope, cov = np.array([0.05, 0.02]), np.eye(2) * sd_position**2
+    points, weights = unscented_points(np.zeros(2), cov)
+    scale, factors = ResidualScale.prior(0.98), []
+    for _ in range(1500):
+        truth = rng.multivariate_normal(np.zeros(2), cov)
+        value = truth @ slope + rng.normal(0.0, np.sqrt(0.25 * true_factor))
+        reads = PointReads((points @ slope)[:, None], weights, np.array([value]), np.array([0.25]))
+        scale = scale.updated(reads, 0.0)
+        factors.append(scale.factor)
+    return factors[500:]
+
+
+def test_pings_a_wide_posterior_explains_leave_the_residual_scale_alone(rng):
+    # the position's spread explains 29 map units^2 of each innovation, the noise 1: such
+    # pings say nothing of the noise (the per-ping clipped sum drove the factor to ~60)
+    wide = _consistent_single_beams(rng, 4.0, 100.0)
+    assert max(wide) < 1.5
+    # a posterior narrower than the noise: the factor is found (sampling sd about 0.5)
+    assert np.mean(_consistent_single_beams(rng, 4.0, 1.0)) == pytest.approx(4.0, rel=0.15)
 
 
 def test_bad_nuisance_settings_are_config_errors():

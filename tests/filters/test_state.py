@@ -3,6 +3,7 @@ readers built on it (posterior points, the MLE position, memory sizing) give wha
 attribute probing they replace gave."""
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -117,9 +118,15 @@ def test_sized_filters_declare_their_points():
 
 
 def test_the_model_setting_selects_the_motion_component_and_the_particle_settings_are_one():
-    assert isinstance(parse_method_spec("pmf:model=rw").motion_model, RandomWalk)
+    with_ins, without_ins = SimpleNamespace(ins_model=object()), SimpleNamespace(ins_model=None)
+    assert isinstance(parse_method_spec("pmf:model=rw").motion_model_for(with_ins), RandomWalk)
     errstate = parse_method_spec("pmf:model=errstate,use_dvl=false")
-    assert errstate.motion_model == InsErrorState(use_dvl=False) and errstate.needs_ins_model
+    assert errstate.motion_model_for(without_ins) == InsErrorState(use_dvl=False)
+    assert errstate.needs_ins_model
+    auto = parse_method_spec("pmf")  # the default takes the error state where there is one
+    assert auto.model == "auto" and not auto.needs_ins_model
+    assert auto.motion_model_for(with_ins) == InsErrorState(use_dvl=True)
+    assert isinstance(auto.motion_model_for(without_ins), RandomWalk)
     shared = {f.name for f in dataclasses.fields(ParticleSettings)}
     assert shared <= {f.name for f in dataclasses.fields(Pf)}
     assert shared <= {f.name for f in dataclasses.fields(Mpf)}

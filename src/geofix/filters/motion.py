@@ -303,8 +303,9 @@ class InsErrorState:
         fallback = (mean, g_inv @ moved_cov @ g_inv.T)
         log_weight = ops.resample_grid(state.log_weight, state.frame, pulled, fallback, shape)
         along = np.einsum("ij,ik,kj->j", axes, kernel, axes)  # K along the new grid axes
-        k0, k1 = (
-            ops.motion_kernel(np.sqrt(max(v, 0.0)) / s) for v, s in zip(along, spacing, strict=True)
+        k0, k1 = (  # a kernel wider than the grid keeps its central taps
+            ops.motion_kernel(np.sqrt(max(v, 0.0)) / s, n - 1)
+            for v, s, n in zip(along, spacing, shape, strict=True)
         )
         kernels = (k0, k1)
         mu_next = f @ mu

@@ -276,7 +276,7 @@ class Mpf(ParticleSettings):
         p0 = es.prior_cov
         p0[_P, _P] += (1e-3 * cell) ** 2 * np.eye(2)
         sd = np.sqrt(np.diag(p0[_P, _P]))
-        dev, h = self._stratified(sd, cell, rng)
+        dev, h = self.stratified(sd, cell, rng)
         dp = mean + dev
         start = np.asarray(problem.indicated[0], dtype=float)
         if not np.isfinite(
@@ -448,19 +448,6 @@ class Mpf(ParticleSettings):
         return bool(state.weights[far].sum() > self.ambiguity_mass)
 
     # ------------------------------------------------------------------ helpers
-    def _stratified(self, sd: np.ndarray, cell: float, rng) -> tuple[np.ndarray, float]:
-        """One particle at a random point of each square of a lattice over the box."""
-        side = 2.0 * self.extent_sigmas * sd
-        count = self.particle_count(float(side[0] * side[1]), cell)
-        h = float(np.sqrt(side[0] * side[1] / count))
-        per_axis = np.maximum(np.ceil(side / h).astype(int), 1)
-        while per_axis.prod() > self.max_particles:
-            per_axis = np.maximum(per_axis - 1, 1)
-        step = side / per_axis
-        axes = [(np.arange(m) - 0.5 * m) * s for m, s in zip(per_axis, step, strict=True)]
-        lattice = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 2)
-        return lattice + step * rng.random(lattice.shape), float(np.sqrt(step.prod()))
-
     def _dvl_update(self, state: MpfState, y: np.ndarray, log_weight: np.ndarray):
         assert state.model.velocity_map is not None  # only called with DVL innovations
         c = state.model.velocity_map[:, _L]

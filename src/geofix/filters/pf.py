@@ -70,7 +70,13 @@ from geofix.filters._weights import (
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.hypothesis_offset import HypothesisOffset
 from geofix.filters.likelihood import TerrainLikelihood, check_field_variance
+from geofix.filters.motion import ErrorStateTrack
 from geofix.filters.nuisance import check_map_model
+from geofix.filters.particle_motion import (
+    error_state_aid,
+    error_state_predict,
+    error_state_prior,
+)
 from geofix.maps.grid import Grid
 from geofix.measurement import predict_measurements
 from geofix.memory import cells_bytes, check_allocation
@@ -100,6 +106,9 @@ class PfState:
     field_offsets : tuple
         The same per further field (:attr:`MatchProblem.fields`, in order; None for a
         field without one), from its first ping on.
+    track : ErrorStateTrack or None
+        The INS error state's Kalman filter with the error-state motion model
+        (:mod:`geofix.filters.particle_motion`); None with the random walk.
     """
 
     particles: np.ndarray
@@ -110,6 +119,7 @@ class PfState:
     resamples: int = 0
     offset: HypothesisOffset | None = None
     field_offsets: tuple = ()
+    track: ErrorStateTrack | None = None
 
     @functools.cached_property
     def weights(self) -> np.ndarray:
@@ -229,6 +239,35 @@ class ParticleSettings(RecursiveFilter):
             self.min_update_ess, self.progressive_stages, self.progressive_min_cells
         )
 
+    def stratified(self, sd: np.ndarray, cell: float, rng) -> tuple[np.ndarray, float]:
+        """One particle at a random point of each square of a lattice over the prior box.
+
+        Parameters
+        ----------
+        sd : numpy.ndarray
+            ``(2,)`` the prior's standard deviation along x and y, metres.
+        cell : float
+            The map's cell, metres.
+        rng : numpy.random.Generator
+            The draws within the squares.
+
+        Returns
+        -------
+        tuple
+            ``(M, 2)`` deviations from the prior's centre (metres, the box
+            ``+-extent_sigmas * sd``) and the lattice's spacing (metres).
+        """
+        side = 2.0 * self.extent_sigmas * sd
+        count = self.particle_count(float(side[0] * side[1]), cell)
+        h = float(np.sqrt(side[0] * side[1] / count))
+        per_axis = np.maximum(np.ceil(side / h).astype(int), 1)
+        while per_axis.prod() > self.max_particles:
+            per_axis = np.maximum(per_axis - 1, 1)
+        step = side / per_axis
+        axes = [(np.arange(m) - 0.5 * m) * s for m, s in zip(per_axis, step, strict=True)]
+        lattice = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 2)
+        return lattice + step * rng.random(lattice.shape), float(np.sqrt(step.prod()))
+
     def memory_points(self) -> tuple[str, int]:
         """``(family, most particles)`` the filter may hold (:mod:`geofix.filters.sizing`)."""
         return self.name, int(self.max_particles)
@@ -266,6 +305,14 @@ class Pf(ParticleSettings):
     ----------
     roughening : float
         Gordon's roughening constant ``K`` (0.2 in Gordon et al. 1993); 0 switches it off.
+    model : str
+        Motion model: ``auto`` (default: ``errstate`` when the problem has an INS error
+        model, ``rw`` when it has none), ``rw`` (every particle moves by the INS
+        displacement plus a white random walk of per-axis variance ``Motion.process_var``)
+        or ``errstate`` (the INS error state of :mod:`geofix.nav.errstate`, one Kalman
+        filter beside the particles: :mod:`geofix.filters.particle_motion`).
+    use_dvl : bool
+        Fold in an aiding DVL's velocity when the problem has one (error state only).
 
     References
     ----------
@@ -283,24 +330,52 @@ class Pf(ParticleSettings):
     name: ClassVar[str] = "pf"
 
     roughening: float = 0.2
+    model: str = "auto"
+    use_dvl: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.roughening < 0:
             raise ConfigError(f"pf: roughening must be >= 0, got {self.roughening}")
+        if self.model not in ("auto", "rw", "errstate"):
+            raise ConfigError(f"pf: model must be auto, rw or errstate, got {self.model!r}")
+
+    @property
+    def needs_ins_model(self) -> bool:
+        """``model=errstate`` needs an INS error model (``problem.ins_model``); ``auto`` not."""
+        return self.model == "errstate"
+
+    def uses_error_state(self, problem: MatchProblem) -> bool:
+        """Whether the motion model for ``problem`` is the INS error state.
+
+        ``errstate``, or ``auto`` on a problem with an INS error model.
+        """
+        return self.model == "errstate" or (self.model == "auto" and problem.ins_model is not None)
 
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> PfState:
-        """A stratified sample of ``N(indicated[0], sigma_position[0]^2 I)``.
+        """A stratified sample of the motion model's position prior.
 
         One particle uniformly in each square of a lattice over the ``+-extent_sigmas``
         box (as many squares as :meth:`particle_count` allows), log-weighted by the prior
-        density.
+        density: ``N(indicated[0], sigma_position[0]^2 I)`` with the random walk, the error
+        state's position prior with the error state (:meth:`uses_error_state`).
 
         Raises
         ------
         MatchError
-            No particle lies on valid map data.
+            No particle lies on valid map data (or ``model=errstate`` without an INS
+            error model).
         """
+        if self.uses_error_state(problem):
+            prior = error_state_prior(self, problem, rng)
+            _prior_on_map(problem, prior.particles)
+            return PfState(
+                prior.particles,
+                log_normalised(prior.log_weight),
+                problem.grid.cell_size,
+                spacing=prior.spacing,
+                track=prior.track,
+            )
         cell = problem.grid.cell_size
         sigma = max(float(problem.sigma_position[0]), 1e-3 * cell)
         start = np.asarray(problem.indicated[0], dtype=float)
@@ -311,15 +386,16 @@ class Pf(ParticleSettings):
         corner = (np.arange(per_axis) - 0.5 * per_axis) * h
         lattice = np.stack(np.meshgrid(corner, corner, indexing="ij"), axis=-1).reshape(-1, 2)
         particles = start + lattice + h * rng.random(lattice.shape)
-        if not np.isfinite(
-            predict_measurements(problem.grid, particles, 0.0, np.zeros((1, 2)))
-        ).any():
-            raise MatchError("pf: the prior particles lie entirely off the map")
+        _prior_on_map(problem, particles)
         log_weight = -0.5 * np.sum((particles - start) ** 2, axis=1) / sigma**2
         return PfState(particles, log_normalised(log_weight), cell, spacing=h)
 
     def predict(self, state: PfState, motion: Motion, rng: np.random.Generator) -> PfState:
-        """Resample and roughen if the ESS is low, then move by the INS plus process noise.
+        """Resample and roughen if the ESS is low, then move by the motion model.
+
+        The random walk moves every particle by the INS displacement plus process noise;
+        the error state carries them through its affine motion
+        (:func:`~geofix.filters.particle_motion.error_state_predict`).
 
         Parameters
         ----------
@@ -340,6 +416,11 @@ class Pf(ParticleSettings):
                 None if o is None else o.predicted(motion.dt) for o in state.field_offsets
             )
             state = replace(state, field_offsets=moved)
+        if state.track is not None:
+            particles, track = error_state_predict(
+                state.particles, state.weights, state.track, motion, rng
+            )
+            return replace(state, particles=particles, track=track)
         draws = rng.standard_normal(state.particles.shape)
         displacement = np.asarray(motion.displacement, dtype=float)
         particles = kernels.moved(
@@ -385,6 +466,9 @@ class Pf(ParticleSettings):
             read on its own map, its offset marginalised in its ping (never carried per
             particle), within the same progressive correction.
         """
+        if state.track is not None:
+            log_weight, track = error_state_aid(state.particles, state.log_weight, state.track, obs)
+            state = replace(state, log_weight=log_normalised(log_weight), track=track)
         if fields:
             return self._update_fields(state, obs, grid, rng, fields)
         if not np.isfinite(obs.values).any():
@@ -463,6 +547,12 @@ class Pf(ParticleSettings):
             offset=None if state.offset is None else state.offset.take(index),
             field_offsets=taken_offsets(state.field_offsets, index),
         )
+
+
+def _prior_on_map(problem: MatchProblem, particles: np.ndarray) -> None:
+    """Refuse (MatchError) a prior set whose particles all lie off the map."""
+    if not np.isfinite(predict_measurements(problem.grid, particles, 0.0, np.zeros((1, 2)))).any():
+        raise MatchError("pf: the prior particles lie entirely off the map")
 
 
 def _points(state: PfState) -> np.ndarray:

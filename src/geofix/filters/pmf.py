@@ -225,8 +225,9 @@ class Pmf(RecursiveFilter):
     ambiguity_mass : float
         Posterior share beyond that radius above which the fix is flagged ambiguous.
     model : str
-        Motion model: ``rw`` (the INS error as a white random walk of per-axis variance
-        ``Motion.process_var``) or ``errstate`` (the INS error state of
+        Motion model: ``auto`` (default: ``errstate`` when the problem has an INS error
+        model, ``rw`` when it has none), ``rw`` (the INS error as a white random walk of
+        per-axis variance ``Motion.process_var``) or ``errstate`` (the INS error state of
         :mod:`geofix.nav.errstate`, its prior the simulator's second moments, from
         ``problem.ins_model``; see :mod:`geofix.filters.motion`). With ``use_dvl`` the
         error-state model folds in an aiding DVL's velocity, as ``mpf`` does
@@ -271,13 +272,13 @@ class Pmf(RecursiveFilter):
     field_variance: str = "local"
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
-    model: str = "rw"
+    model: str = "auto"
     use_dvl: bool = True
     map_model: str = "imperfect"
 
     def __post_init__(self) -> None:
-        if self.model not in MOTION_MODELS:
-            raise ConfigError(f"pmf: model must be rw or errstate, got {self.model!r}")
+        if self.model not in MOTION_MODELS and self.model != "auto":
+            raise ConfigError(f"pmf: model must be auto, rw or errstate, got {self.model!r}")
         if self.points < 5 or self.points % 2 == 0:
             raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
         if self.max_points < self.points or self.max_points % 2 == 0:
@@ -291,15 +292,22 @@ class Pmf(RecursiveFilter):
 
     @property
     def needs_ins_model(self) -> bool:
-        """The error-state motion model needs an INS error model (``problem.ins_model``)."""
-        return self.motion_model.needs_ins_model
+        """``model=errstate`` needs an INS error model (``problem.ins_model``); ``auto`` not."""
+        return self.model == "errstate"
 
-    @property
-    def motion_model(self) -> RandomWalk | InsErrorState:
-        """The motion model the ``model`` setting selects (:mod:`geofix.filters.motion`)."""
-        if self.model == "errstate":
+    def motion_model_for(self, problem: MatchProblem) -> RandomWalk | InsErrorState:
+        """The motion model the ``model`` setting selects for ``problem``.
+
+        ``auto`` takes the error state when ``problem.ins_model`` is set, the random walk
+        otherwise (:mod:`geofix.filters.motion`).
+        """
+        if self.model == "errstate" or (self.model == "auto" and problem.ins_model is not None):
             return InsErrorState(self.use_dvl)
         return RandomWalk()
+
+    def motion_model_of(self, state: PmfState) -> RandomWalk | InsErrorState:
+        """The motion model a state was started with (an error-state track or none)."""
+        return InsErrorState(self.use_dvl) if state.track is not None else RandomWalk()
 
     @property
     def likelihood(self) -> TerrainLikelihood:
@@ -314,8 +322,8 @@ class Pmf(RecursiveFilter):
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> PmfState:
         """The motion model's prior on a square grid.
 
-        ``N(indicated[0], sigma_position[0]^2 I)`` with ``model=rw``; the error state's
-        position prior with ``model=errstate``.
+        ``N(indicated[0], sigma_position[0]^2 I)`` with the random walk; the error
+        state's position prior with the error state (:meth:`motion_model_for`).
 
         Raises
         ------
@@ -323,7 +331,7 @@ class Pmf(RecursiveFilter):
             No node of the prior grid lies on valid map data (or ``model=errstate``
             without an INS error model).
         """
-        log_weight, centre, spacing, extra = self.motion_model.prior(self, problem)
+        log_weight, centre, spacing, extra = self.motion_model_for(problem).prior(self, problem)
         cell = problem.grid.cell_size
         return PmfState(log_weight, centre, np.eye(2), spacing, cell, **extra)
 
@@ -343,7 +351,7 @@ class Pmf(RecursiveFilter):
         rng : numpy.random.Generator
             Random draws of the step.
         """
-        return self.motion_model.predict(self, state, motion)
+        return self.motion_model_of(state).predict(self, state, motion)
 
     #: The update weighs further fields (``fields``): the sum of their log-likelihoods.
     fuses_fields: ClassVar[bool] = True
@@ -373,7 +381,7 @@ class Pmf(RecursiveFilter):
             ``(Observation, Grid)`` of every further field at this sample (map units of
             that map; ``()``: none).
         """
-        state = self.motion_model.aid(state, obs)
+        state = self.motion_model_of(state).aid(state, obs)
         if fields:
             return self._update_fields(state, obs, grid, fields)
         if not np.isfinite(obs.values).any():
