@@ -70,3 +70,21 @@ def test_the_model_setting_is_checked_and_auto_needs_no_ins(mission):
     assert not parse_method_spec("pf").needs_ins_model
     with pytest.raises(Exception, match="model must be auto, rw or errstate"):
         parse_method_spec("pf:model=kalman")
+
+
+def test_a_set_collapsed_onto_one_point_still_moves(mission):
+    from geofix.filters.base import motions
+    from geofix.filters.particle_motion import error_state_predict
+
+    _, grid, trials = mission
+    problem = trials[0].problem(grid)
+    state = parse_method_spec("pf").initialize(problem, np.random.default_rng(1))
+    collapsed = np.repeat(problem.indicated[:1], 50, axis=0)
+    weights = np.full(50, 1 / 50)
+    moved, track = error_state_predict(
+        collapsed, weights, state.track, motions(problem)[0], np.random.default_rng(2)
+    )
+    assert np.isfinite(moved).all() and track.step == 1
+    # every particle moved by about the INS displacement (the drift learnt so far is none)
+    step = problem.indicated[1] - problem.indicated[0]
+    assert np.allclose(moved.mean(axis=0) - collapsed[0], step, atol=0.05 * np.hypot(*step))

@@ -41,6 +41,11 @@ from geofix.filters.motion import (
 from geofix.nav.errstate import error_state, step_matrices
 from geofix.problem import MatchProblem
 
+#: Variance added to the particles' position covariance when its smallest eigenvalue is
+#: below it (m^2): a set collapsed onto one point (no roughening) would make the error
+#: state's regression on ``dp`` singular.
+MIN_POSITION_VAR = 1e-6
+
 
 @dataclass(frozen=True)
 class ParticlePrior:
@@ -126,6 +131,8 @@ def error_state_predict(
     mean = weights @ particles
     dev = particles - mean
     cov = (dev * weights[:, None]).T @ dev
+    if np.linalg.eigvalsh(cov)[0] < MIN_POSITION_VAR:  # a collapsed set: never singular
+        cov = cov + MIN_POSITION_VAR * np.eye(2)
     mu, sigma = replace_marginal(*track.kf, track.indicated - mean, cov)
     es, f, q = step_matrices(
         track.errstate, track.step, motion.displacement, motion.dt, motion.process_var
@@ -158,4 +165,10 @@ def error_state_aid(
     return log_weight + log_like, replace(track, kf=kf)
 
 
-__all__ = ["ParticlePrior", "error_state_aid", "error_state_predict", "error_state_prior"]
+__all__ = [
+    "MIN_POSITION_VAR",
+    "ParticlePrior",
+    "error_state_aid",
+    "error_state_predict",
+    "error_state_prior",
+]
