@@ -83,13 +83,17 @@ def _rms(rows):
 
 def test_error_state_filters_follow_a_drifting_ins_far_better_than_the_random_walk_ones():
     scen = _drift_scenario()
-    specs = ["pf:particles=2000,model=rw", "mpf:particles=2000", "pmf:model=errstate"]
+    specs = [
+        "pf:particles=2000,model=rw,map_model=exact",  # the map is the seabed: motion models alone
+        "mpf:particles=2000,map_model=exact",
+        "pmf:model=errstate,map_model=exact",
+    ]
     out, crlb = _run(scen, specs, 8)
     pf, mpf, pmf = (_rms(out[s]) for s in specs)
     # the bound on this mission is about 35 m; the random-walk PF ends near 5x that
     assert mpf < 0.7 * pf and pmf < 0.7 * pf
     assert mpf < 1.6 * crlb and pmf < 1.6 * crlb
-    nees = np.mean([d**2 for _, d in out["mpf:particles=2000"]])
+    nees = np.mean([d**2 for _, d in out["mpf:particles=2000,map_model=exact"]])
     # 8 trials of a chi-square(2) mean: 2 +- 0.7 (1 sigma); allow the filter's own slack
     assert 0.5 < nees < 5.0
 

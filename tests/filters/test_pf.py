@@ -124,7 +124,11 @@ def test_converges_from_a_prior_much_wider_than_the_cell():
     cell = problem.grid.cell_size
     # 5000 random draws over a prior 60 cells wide (1 sigma), the update applied at once:
     # a wrong place, with confidence
-    few = Pf(max_particles=5000, discretisation_noise=False, progressive_stages=0)
+    # (the map is the seabed here; the likelihood takes it as exact, so that the test is
+    # of the sampling alone)
+    few = Pf(
+        max_particles=5000, discretisation_noise=False, progressive_stages=0, map_model="exact"
+    )
     fix = few.match(problem, np.random.default_rng(0))
     assert np.hypot(*(fix.track[-1] - truth[-1])) > 20 * cell and not fix.ambiguous
     # the same 5000 with the update in stages (progressive correction) find the truth
@@ -133,6 +137,22 @@ def test_converges_from_a_prior_much_wider_than_the_cell():
     fix = Pf().match(problem, np.random.default_rng(0))
     assert np.hypot(*(fix.track[-1] - truth[-1])) < 0.5 * cell
     assert not fix.ambiguous
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="5000 particles on the default imperfect-map likelihood (the representation "
+    "layer at 1.2 of the plane-fit residual) end 983 m off and not flagged ambiguous, "
+    "where the exact likelihood finds the truth: the wider per-beam variance leaves "
+    "several modes a sparse staged set cannot tell apart",
+)
+def test_progressive_correction_finds_the_truth_on_the_default_map_model():
+    from test_pmf import _wide_prior_problem
+
+    problem, truth = _wide_prior_problem(0)
+    few = Pf(max_particles=5000, discretisation_noise=False, progressive_stages=4)
+    fix = few.match(problem, np.random.default_rng(0))
+    assert np.hypot(*(fix.track[-1] - truth[-1])) < 0.5 * problem.grid.cell_size
 
 
 def test_prior_is_a_stratified_sample_sized_by_its_area():

@@ -54,9 +54,9 @@ def test_errstate_pmf_with_the_dvl_ends_closer_and_as_mpf():
             sq.append(np.sum((result.estimate[-1] - trial.truth[-1]) ** 2))
         return float(np.sqrt(np.mean(sq)))
 
-    with_dvl = end_rms("pmf:model=errstate")
-    without = end_rms("pmf:model=errstate,use_dvl=false")
-    mpf = end_rms("mpf:particles=2000")
+    with_dvl = end_rms("pmf:model=errstate,map_model=exact")  # the map is the seabed
+    without = end_rms("pmf:model=errstate,use_dvl=false,map_model=exact")
+    mpf = end_rms("mpf:particles=2000,map_model=exact")
     assert with_dvl < 0.85 * without
     # the grid and the particles carry the same model: their errors agree
     assert abs(with_dvl - mpf) < 0.25 * mpf
