@@ -17,7 +17,8 @@ sides share the map reading and differ only in the filter machinery:
   the same number of particles as our ``pf``, no regulariser.
 
 Identical likelihood: our ``pmf`` and ``pf`` run here with ``discretisation_noise=False``
-(Stone Soup has no such term), so both sides weigh every hypothesis by the same Gaussian
+and ``map_model=exact`` (Stone Soup has neither term) and the random-walk motion model
+(``model=rw``, Stone Soup's), so both sides weigh every hypothesis by the same Gaussian
 of the same beams with the same variance; our grid and particle count are fixed
 (``max_points = points``, ``max_particles = particles``) as Stone Soup's are. The time
 ratio (Stone Soup's time per trial over ours, same trials, same run) is printed per filter.
@@ -223,10 +224,12 @@ def compare(scen, trials: int, points: int = 61, particles: int = 5000) -> dict:
     from geofix.sim.simulate import prepare_map, simulate_trial
 
     grid = prepare_map(scen)
-    # Same grid size and particle count as the peers: no adaptive growth.
-    # Identical likelihood: no discretisation noise (Stone Soup has none).
-    ours_pmf = Pmf(points=points, max_points=points, discretisation_noise=False)
-    ours_pf = Pf(particles=particles, max_particles=particles, discretisation_noise=False)
+    # Same grid size and particle count as the peers: no adaptive growth. Identical
+    # likelihood: no discretisation noise, the map taken as exact (Stone Soup has neither
+    # term); the random-walk motion model, as Stone Soup's.
+    same = {"discretisation_noise": False, "model": "rw", "map_model": "exact"}
+    ours_pmf = Pmf(points=points, max_points=points, **same)
+    ours_pf = Pf(particles=particles, max_particles=particles, **same)
     runs = {
         "geofix pmf": lambda p, r: ours_pmf.match(p, r).track,
         "stonesoup pmf": lambda p, r: stonesoup_pmf(p, points, ours_pmf.extent_sigmas),
