@@ -43,7 +43,7 @@ RUNS = (
         0,
     ),
 )
-FILTERS = ("pmf", "pf", "mpf", "pmf:model=errstate")
+FILTERS = ("pmf", "pf", "mpf", "pmf:model=rw", "pf:model=rw")
 #: Told the simulator's own distribution of the start error (its bias and spread): run
 #: where that distribution has both, for the track bound that holds for any estimator.
 INFORMED = "mpf:prior=simulator"
