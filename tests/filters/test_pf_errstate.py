@@ -80,9 +80,9 @@ def test_a_set_collapsed_onto_one_point_still_moves(mission):
     problem = trials[0].problem(grid)
     state = parse_method_spec("pf").initialize(problem, np.random.default_rng(1))
     collapsed = np.repeat(problem.indicated[:1], 50, axis=0)
-    weights = np.full(50, 1 / 50)
+    moments = (collapsed[0].copy(), np.zeros((2, 2)))  # every particle at one point
     moved, track = error_state_predict(
-        collapsed, weights, state.track, motions(problem)[0], np.random.default_rng(2)
+        collapsed, moments, state.track, motions(problem)[0], np.random.default_rng(2)
     )
     assert np.isfinite(moved).all() and track.step == 1
     # every particle moved by about the INS displacement (the drift learnt so far is none)

@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from geofix.errors import MatchError
+from geofix.errors import ConfigError, MatchError
 from geofix.filters import _grid_ops as ops
 from geofix.filters.base import Motion, Observation
 from geofix.filters.hypothesis_offset import mixed_offsets, regridded_offsets
@@ -337,6 +337,20 @@ class InsErrorState:
 MOTION_MODELS = {"rw": RandomWalk, "errstate": InsErrorState}
 
 
+def check_motion_model(name: str, model: str) -> None:
+    """Refuse (ConfigError) a ``model`` setting other than ``auto``, ``rw`` or ``errstate``."""
+    if model not in MOTION_MODELS and model != "auto":
+        raise ConfigError(f"{name}: model must be auto, rw or errstate, got {model!r}")
+
+
+def takes_error_state(model: str, problem: MatchProblem) -> bool:
+    """Whether a ``model`` setting runs on the INS error state for ``problem``.
+
+    ``errstate``, or ``auto`` on a problem with an INS error model (``problem.ins_model``).
+    """
+    return model == "errstate" or (model == "auto" and problem.ins_model is not None)
+
+
 def replace_marginal(mu, sigma, dp_mean, dp_cov):
     """``N(mu, Sigma)`` with the ``dp`` marginal replaced by ``N(dp_mean, dp_cov)``.
 
@@ -432,7 +446,9 @@ __all__ = [
     "ErrorStateTrack",
     "InsErrorState",
     "RandomWalk",
+    "check_motion_model",
     "conditional_motion",
     "dvl_update",
     "replace_marginal",
+    "takes_error_state",
 ]

@@ -103,7 +103,7 @@ def error_state_prior(settings, problem: MatchProblem, rng) -> ParticlePrior:
 
 def error_state_predict(
     particles: np.ndarray,
-    weights: np.ndarray,
+    moments: tuple[np.ndarray, np.ndarray],
     track: ErrorStateTrack,
     motion: Motion,
     rng: np.random.Generator,
@@ -114,8 +114,9 @@ def error_state_predict(
     ----------
     particles : numpy.ndarray
         ``(M, 2)`` positions after the last update, metres.
-    weights : numpy.ndarray
-        ``(M,)`` their normalised weights.
+    moments : tuple
+        Their weighted mean ``(2,)`` (m) and covariance ``(2, 2)`` (m^2)
+        (:meth:`~geofix.filters.pf.PfState.moments`).
     track : ErrorStateTrack
         The error state's Kalman filter at the current sample.
     motion : Motion
@@ -128,9 +129,7 @@ def error_state_predict(
     tuple
         The moved ``(M, 2)`` particles and the track at the next sample.
     """
-    mean = weights @ particles
-    dev = particles - mean
-    cov = (dev * weights[:, None]).T @ dev
+    mean, cov = moments
     if np.linalg.eigvalsh(cov)[0] < MIN_POSITION_VAR:  # a collapsed set: never singular
         cov = cov + MIN_POSITION_VAR * np.eye(2)
     mu, sigma = replace_marginal(*track.kf, track.indicated - mean, cov)

@@ -70,7 +70,7 @@ from geofix.filters._weights import (
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.hypothesis_offset import HypothesisOffset
 from geofix.filters.likelihood import TerrainLikelihood, check_field_variance
-from geofix.filters.motion import ErrorStateTrack
+from geofix.filters.motion import ErrorStateTrack, check_motion_model, takes_error_state
 from geofix.filters.nuisance import check_map_model
 from geofix.filters.particle_motion import (
     error_state_aid,
@@ -337,8 +337,7 @@ class Pf(ParticleSettings):
         super().__post_init__()
         if self.roughening < 0:
             raise ConfigError(f"pf: roughening must be >= 0, got {self.roughening}")
-        if self.model not in ("auto", "rw", "errstate"):
-            raise ConfigError(f"pf: model must be auto, rw or errstate, got {self.model!r}")
+        check_motion_model("pf", self.model)
 
     @property
     def needs_ins_model(self) -> bool:
@@ -350,7 +349,7 @@ class Pf(ParticleSettings):
 
         ``errstate``, or ``auto`` on a problem with an INS error model.
         """
-        return self.model == "errstate" or (self.model == "auto" and problem.ins_model is not None)
+        return takes_error_state(self.model, problem)
 
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> PfState:
         """A stratified sample of the motion model's position prior.
@@ -418,7 +417,7 @@ class Pf(ParticleSettings):
             state = replace(state, field_offsets=moved)
         if state.track is not None:
             particles, track = error_state_predict(
-                state.particles, state.weights, state.track, motion, rng
+                state.particles, state.moments(), state.track, motion, rng
             )
             return replace(state, particles=particles, track=track)
         draws = rng.standard_normal(state.particles.shape)

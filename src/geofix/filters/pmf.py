@@ -76,7 +76,13 @@ from geofix.filters._grid_ops import REGRID_COPIES, check_regrid
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.hypothesis_offset import HypothesisOffset
 from geofix.filters.likelihood import TerrainLikelihood, check_field_variance, node_field_variance
-from geofix.filters.motion import MOTION_MODELS, ErrorStateTrack, InsErrorState, RandomWalk
+from geofix.filters.motion import (
+    ErrorStateTrack,
+    InsErrorState,
+    RandomWalk,
+    check_motion_model,
+    takes_error_state,
+)
 from geofix.filters.nuisance import check_map_model
 from geofix.maps.grid import Grid
 from geofix.problem import MatchProblem
@@ -277,8 +283,7 @@ class Pmf(RecursiveFilter):
     map_model: str = "imperfect"
 
     def __post_init__(self) -> None:
-        if self.model not in MOTION_MODELS and self.model != "auto":
-            raise ConfigError(f"pmf: model must be auto, rw or errstate, got {self.model!r}")
+        check_motion_model("pmf", self.model)
         if self.points < 5 or self.points % 2 == 0:
             raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
         if self.max_points < self.points or self.max_points % 2 == 0:
@@ -301,7 +306,7 @@ class Pmf(RecursiveFilter):
         ``auto`` takes the error state when ``problem.ins_model`` is set, the random walk
         otherwise (:mod:`geofix.filters.motion`).
         """
-        if self.model == "errstate" or (self.model == "auto" and problem.ins_model is not None):
+        if takes_error_state(self.model, problem):
             return InsErrorState(self.use_dvl)
         return RandomWalk()
 
