@@ -136,7 +136,7 @@ def residuals(grid: Grid, track, heading, offsets, measured, method: str = "bili
 
 
 def log_likelihood(
-    predicted: np.ndarray, measured: np.ndarray, noise_var, bias_var: float = 0.0
+    predicted: np.ndarray, measured: np.ndarray, noise_var, bias_var: float = 0.0, modes=None
 ) -> np.ndarray:
     """Gaussian log-likelihood of the measured beams for every hypothesis.
 
@@ -154,6 +154,10 @@ def log_likelihood(
         Variance of an unknown offset common to every beam of the sample (tide, sound
         speed, map datum), map units squared; 0: none. When positive the likelihood is
         marginalised over it (:func:`common_bias_log_likelihood`).
+    modes : numpy.ndarray, optional
+        ``(b, k)`` shapes of a map error common to the beams of the sample, each column
+        one shape times its 1-sigma (map units): the likelihood is marginalised over
+        them too (:func:`low_rank_log_likelihood`). None: none.
 
     Returns
     -------
@@ -161,6 +165,9 @@ def log_likelihood(
         ``(...)`` log-likelihoods up to a constant; off-map beams cost
         :data:`OFF_MAP_LOG_LIKELIHOOD` each.
     """
+    if modes is not None:
+        columns = _with_offset(modes, bias_var)
+        return low_rank_log_likelihood(predicted, measured, noise_var, columns)
     if bias_var > 0:
         return common_bias_log_likelihood(predicted, measured, noise_var, bias_var)
     measured = np.asarray(measured, dtype=float)
@@ -179,6 +186,7 @@ def hypotheses_log_likelihood(
     noise_var,
     bias_var: float = 0.0,
     shift=None,
+    modes=None,
 ) -> np.ndarray:
     """Gaussian log-likelihood of the measured beams from every hypothesised position.
 
@@ -210,6 +218,9 @@ def hypotheses_log_likelihood(
         ``(...)`` each hypothesis's own offset added to its predictions, map units (a
         per-hypothesis offset state, :mod:`geofix.filters.hypothesis_offset`; through
         the prediction array).
+    modes : numpy.ndarray, optional
+        ``(b, k)`` map-error shapes marginalised over (:func:`log_likelihood`; through
+        the prediction array).
 
     Returns
     -------
@@ -218,11 +229,12 @@ def hypotheses_log_likelihood(
         :data:`OFF_MAP_LOG_LIKELIHOOD` each).
     """
     positions = np.asarray(positions, dtype=float)
-    if bias_var > 0 or grid.interpolation != "bilinear" or shift is not None:
+    reference = bias_var > 0 or shift is not None or modes is not None
+    if reference or grid.interpolation != "bilinear":
         predicted = predict_measurements(grid, positions, heading, offsets)
         if shift is not None:
             predicted = predicted + np.asarray(shift, dtype=float)[..., None]
-        return log_likelihood(predicted, measured, noise_var, bias_var)
+        return log_likelihood(predicted, measured, noise_var, bias_var, modes)
     bcol, brow, y, var = _measured_beams(grid, heading, offsets, measured, noise_var)
     px, py = _flat_xy(positions)
     out = np.empty(px.size)
@@ -243,6 +255,7 @@ def local_field_log_likelihood(
     sides,
     bias_var: float = 0.0,
     shift=None,
+    modes=None,
 ) -> np.ndarray:
     r"""Log-likelihood of every hypothesis with the field's variation within its own share.
 
@@ -290,6 +303,9 @@ def local_field_log_likelihood(
     shift : numpy.ndarray, optional
         ``(...)`` each hypothesis's own offset added to its predictions, map units
         (through the prediction arrays too).
+    modes : numpy.ndarray, optional
+        ``(b, k)`` map-error shapes common to the beams, marginalised over as further
+        columns of ``D`` (through the prediction arrays).
 
     Returns
     -------
@@ -299,9 +315,10 @@ def local_field_log_likelihood(
     """
     positions = np.asarray(positions, dtype=float)
     sides = np.asarray(sides, dtype=float).reshape(2, 2)
-    if bias_var > 0 or grid.interpolation != "bilinear" or shift is not None:
+    reference = bias_var > 0 or shift is not None or modes is not None
+    if reference or grid.interpolation != "bilinear":
         return local_field_reference(
-            grid, positions, heading, offsets, measured, noise_var, sides, bias_var, shift
+            grid, positions, heading, offsets, measured, noise_var, sides, bias_var, shift, modes
         )
     bcol, brow, y, var = _measured_beams(grid, heading, offsets, measured, noise_var)
     px, py = _flat_xy(positions)
@@ -381,6 +398,7 @@ def local_field_reference(
     sides,
     bias_var=0.0,
     shift=None,
+    modes=None,
 ) -> np.ndarray:
     """:func:`local_field_log_likelihood` from the prediction arrays (any map read).
 
@@ -409,6 +427,8 @@ def local_field_reference(
         Variance of an offset common to every beam, map units squared (0: none).
     shift : numpy.ndarray, optional
         ``(...)`` each hypothesis's own offset subtracted from its residuals, map units.
+    modes : numpy.ndarray, optional
+        ``(b, k)`` map-error shapes common to the beams, further columns of ``Z``.
 
     Returns
     -------
@@ -426,22 +446,11 @@ def local_field_reference(
         moved = predict_measurements(grid, positions + side, heading, offsets)
         d = moved.reshape(f0.shape) - f0
         columns.append(np.where(np.isfinite(d), d, 0.0) / np.sqrt(12.0))
-    if bias_var > 0:
-        columns.append(np.full(f0.shape, np.sqrt(bias_var)))
-    z = np.stack(columns, axis=-1)  # (m, b, c)
-    residual = measured - f0
+    own = np.stack(columns, axis=-1)  # (m, b, 2)
     if shift is not None:
-        residual = residual - np.asarray(shift, dtype=float).reshape(-1, 1)
-    valid = np.isfinite(residual)
-    off_map = (~valid & np.isfinite(measured)).sum(axis=-1)
-    inv_var = np.broadcast_to(1.0 / np.asarray(noise_var, dtype=float), measured.shape)
-    w = np.where(valid, inv_var, 0.0)
-    r = np.where(valid, residual, 0.0)
-    u = np.einsum("mbc,mb->mc", z, w * r)
-    inner = np.eye(z.shape[-1]) + np.einsum("mbc,mb,mbd->mcd", z, w, z)
-    explained = np.einsum("mc,mc->m", u, np.linalg.solve(inner, u[..., None])[..., 0])
-    quad = (w * r * r).sum(axis=-1) - explained
-    ll = -0.5 * (quad + np.linalg.slogdet(inner)[1]) + OFF_MAP_LOG_LIKELIHOOD * off_map
+        f0 = f0 + np.asarray(shift, dtype=float).reshape(-1, 1)
+    common = _with_offset(modes, bias_var, measured.shape[0])
+    ll = low_rank_log_likelihood(f0, measured, noise_var, common, own)
     return ll.reshape(positions.shape[:-1])
 
 
@@ -863,6 +872,94 @@ def common_bias_log_likelihood(predicted, measured, noise_var, bias_var: float) 
     t = (r * w).sum(axis=-1)
     quad = (r * r * w).sum(axis=-1) - bias_var * t * t / (1.0 + bias_var * s)
     return -0.5 * quad - 0.5 * np.log1p(bias_var * s) + OFF_MAP_LOG_LIKELIHOOD * off_map
+
+
+def low_rank_log_likelihood(predicted, measured, noise_var, common=None, own=None) -> np.ndarray:
+    r"""Log-likelihood with a residual covariance ``R + Z Z^T`` of low rank beyond ``R``.
+
+    ``Z = [own_i, common]``: ``(b, c)`` columns common to every hypothesis (an offset
+    ``sqrt(P) 1``, shapes of a map error across the beams) and ``(b, c')`` columns of
+    each hypothesis's own (its field's change within its share). With ``W = R^-1`` (0 for
+    a missing or off-map beam), ``u = Z^T W r``, by Woodbury's identity and the matrix
+    determinant lemma,
+
+    ``log L = -0.5 (r^T W r - u^T (I + Z^T W Z)^-1 u + log det(I + Z^T W Z))``
+
+    (the ``log det R`` common to every hypothesis is dropped). With the one column
+    ``sqrt(P) 1`` it is :func:`common_bias_log_likelihood`.
+
+    Parameters
+    ----------
+    predicted : numpy.ndarray
+        ``(..., b)`` predicted values (NaN off the map).
+    measured : numpy.ndarray
+        ``(b,)`` measured values (NaN = missing beam).
+    noise_var : float or numpy.ndarray
+        Per-beam variance, scalar, ``(b,)`` or per hypothesis ``(..., b)``, map units
+        squared.
+    common : numpy.ndarray, optional
+        ``(b, c)`` columns common to every hypothesis, map units.
+    own : numpy.ndarray, optional
+        ``(m, b, c')`` columns of each of the ``m`` flattened hypotheses, map units.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(...)`` log-likelihoods up to a constant; off-map beams cost
+        :data:`OFF_MAP_LOG_LIKELIHOOD` each.
+    """
+    measured = np.asarray(measured, dtype=float)
+    predicted = np.asarray(predicted, dtype=float)
+    shape = predicted.shape[:-1]
+    beams = measured.shape[0]
+    residual = measured - predicted.reshape(-1, beams)
+    valid = np.isfinite(residual)
+    off_map = (~valid & np.isfinite(measured)).sum(axis=-1)
+    inv_var = 1.0 / np.asarray(noise_var, dtype=float)
+    if inv_var.ndim == predicted.ndim and inv_var.ndim > 1:
+        inv_var = inv_var.reshape(-1, beams)
+    w = np.where(valid, inv_var, 0.0)
+    r = np.where(valid, residual, 0.0)
+    parts_u = []
+    if own is not None:
+        own = np.asarray(own, dtype=float)
+        parts_u.append(np.einsum("mbc,mb->mc", own, w * r))
+    if common is not None:
+        common = np.asarray(common, dtype=float).reshape(beams, -1)
+        parts_u.append((w * r) @ common)
+    quad = (w * r * r).sum(axis=-1)
+    if not parts_u:
+        return (-0.5 * quad + OFF_MAP_LOG_LIKELIHOOD * off_map).reshape(shape)
+    u = np.concatenate(parts_u, axis=-1)
+    if own is not None and common is not None:
+        own_common = np.einsum("mbc,mb,bd->mcd", own, w, common)
+        top = np.concatenate([np.einsum("mbc,mb,mbd->mcd", own, w, own), own_common], axis=2)
+        bottom = np.concatenate([own_common.transpose(0, 2, 1), _gram(w, common)], axis=2)
+        gram = np.concatenate([top, bottom], axis=1)
+    elif own is not None:
+        gram = np.einsum("mbc,mb,mbd->mcd", own, w, own)
+    else:
+        gram = _gram(w, common)
+    inner = np.eye(u.shape[-1]) + gram
+    explained = np.einsum("mc,mc->m", u, np.linalg.solve(inner, u[..., None])[..., 0])
+    ll = -0.5 * (quad - explained + np.linalg.slogdet(inner)[1])
+    return (ll + OFF_MAP_LOG_LIKELIHOOD * off_map).reshape(shape)
+
+
+def _gram(w: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """``(m, c, c)`` ``Z^T W_i Z`` of common columns ``Z`` ``(b, c)`` for every row of ``w``."""
+    products = (columns[:, :, None] * columns[:, None, :]).reshape(columns.shape[0], -1)
+    c = columns.shape[1]
+    return (w @ products).reshape(-1, c, c)
+
+
+def _with_offset(modes, bias_var: float, beams: int | None = None) -> np.ndarray | None:
+    """The common columns: ``sqrt(bias_var) 1`` (when positive) beside ``modes``."""
+    columns = [] if modes is None else [np.asarray(modes, dtype=float)]
+    if bias_var > 0:
+        size = int(columns[0].shape[0] if columns else beams or 0)
+        columns.insert(0, np.full((size, 1), np.sqrt(bias_var)))
+    return np.concatenate(columns, axis=1) if columns else None
 
 
 def common_bias_posterior(residual, noise_var, bias_var: float) -> tuple[float, float]:

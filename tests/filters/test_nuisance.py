@@ -139,10 +139,11 @@ def test_bad_nuisance_settings_are_config_errors():
 def test_the_map_models_switch_their_parts_on():
     settings = NavigatorSettings.passive().for_map_model("imperfect")
     assert settings.depth_bias_std is None and settings.adaptive_noise
-    assert settings.representation_error
+    assert settings.representation_error and settings.swath_modes
     adaptive = NavigatorSettings.passive().for_map_model("adaptive")
     assert adaptive.depth_bias_std == 0 and adaptive.adaptive_noise
-    assert adaptive.representation_error
+    assert adaptive.representation_error and adaptive.swath_modes
+    assert not NavigatorSettings().swath_modes
     assert NavigatorSettings().for_map_model("exact") == NavigatorSettings()
     told = NavigatorSettings(depth_bias_std=2.0).for_map_model("imperfect")
     assert told.depth_bias_std == 2.0

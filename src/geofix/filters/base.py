@@ -85,6 +85,11 @@ class Observation:
         The filter is to carry the offset per hypothesis from this ping on (``bias_var``
         its prior variance); False: ``bias_var`` is marginalised around the values as
         given.
+    map_modes : numpy.ndarray or None
+        ``(b, k)`` shapes of the map's error across the ping's beams (a tilt and a
+        curvature across a swath), each column a shape times its 1-sigma, map units: the
+        likelihood is marginalised over them beside the offset
+        (:class:`geofix.filters.nuisance.SwathModes`). None: none.
     """
 
     values: np.ndarray
@@ -96,6 +101,7 @@ class Observation:
     bias_var: float = 0.0
     bias_walk: float = 0.0
     bias_per_hypothesis: bool = False
+    map_modes: np.ndarray | None = None
 
 
 class RecursiveFilter:

@@ -139,14 +139,15 @@ class TerrainLikelihood:
         bias_var, shift = obs.bias_var, None
         if offset is not None:  # each particle's own offset, N(b_i, P)
             bias_var, shift = offset.var, offset.mean
+        modes = obs.map_modes
         if self.discretisation_noise and spacing > 0:
             if self._local_share(spacing, cell):
                 sides = spacing * np.eye(2)
                 return local_field_log_likelihood(
-                    grid, positions, *args, var, sides, bias_var, shift
+                    grid, positions, *args, var, sides, bias_var, shift, modes
                 )
             var = var + spread_field_variance(grid, positions, spacing, obs, rng)
-        return hypotheses_log_likelihood(grid, positions, *args, var, bias_var, shift)
+        return hypotheses_log_likelihood(grid, positions, *args, var, bias_var, shift, modes)
 
     def nodes(
         self, grid: Grid, obs: Observation, state: PmfState
@@ -177,7 +178,7 @@ class TerrainLikelihood:
             return self._nodes_with_offsets(grid, obs, state, state.offset, local)
         if local:
             return self._nodes_local(grid, obs, state), None
-        if obs.bias_var > 0 or grid.interpolation != "bilinear":
+        if obs.bias_var > 0 or obs.map_modes is not None or grid.interpolation != "bilinear":
             return self._nodes_reference(grid, obs, state), None
         # One compiled pass over nodes x beams (the reference path -- node_positions,
         # predict_measurements, node_field_variance, log_likelihood -- to ~1e-15 relative).
@@ -200,7 +201,7 @@ class TerrainLikelihood:
         nodes' differences); through the prediction arrays with a common offset or a map
         read other than bilinear.
         """
-        if obs.bias_var == 0 and grid.interpolation == "bilinear":
+        if obs.bias_var == 0 and obs.map_modes is None and grid.interpolation == "bilinear":
             u, v = state.node_offsets
             frame = (state.centre, state.axes, u, v)
             args = (obs.heading, obs.offsets, obs.values, obs.noise_var)
@@ -216,6 +217,7 @@ class TerrainLikelihood:
             obs.noise_var,
             sides,
             obs.bias_var,
+            modes=obs.map_modes,
         )
 
     def _nodes_with_offsets(
@@ -231,13 +233,13 @@ class TerrainLikelihood:
         if local:
             sides = (state.axes * state.spacing).T
             args = (obs.heading, obs.offsets, obs.values, obs.noise_var, sides)
-            ll = local_field_log_likelihood(grid, xy, *args, offset.var, offset.mean)
+            ll = local_field_log_likelihood(grid, xy, *args, offset.var, offset.mean, obs.map_modes)
         else:
             shifted = predicted + offset.mean[..., None]
             var = obs.noise_var
             if self.discretisation_noise:
                 var = var + node_field_variance(shifted, obs.values)
-            ll = log_likelihood(shifted, obs.values, var, offset.var)
+            ll = log_likelihood(shifted, obs.values, var, offset.var, obs.map_modes)
         return ll, offset.updated(grid, xy, obs, predicted)
 
     def _nodes_reference(self, grid: Grid, obs: Observation, state: PmfState) -> np.ndarray:
@@ -247,7 +249,7 @@ class TerrainLikelihood:
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         if self.discretisation_noise:
             var = var + node_field_variance(predicted, obs.values)
-        return log_likelihood(predicted, obs.values, var, obs.bias_var)
+        return log_likelihood(predicted, obs.values, var, obs.bias_var, obs.map_modes)
 
 
 def field_variance_particles(particles: int, beams: int) -> int:

@@ -43,14 +43,16 @@ from geofix.filters.nuisance import (
     CommonOffset,
     RepresentationShare,
     ResidualScale,
+    SwathModes,
     correlated_share,
     default_offset_std,
     read_at_points,
     representation_std,
+    swath_shapes,
 )
 from geofix.filters.state import SteppedFilter
 from geofix.maps.grid import Grid
-from geofix.measurement import lag_compensated, map_error_variance
+from geofix.measurement import lag_compensated, map_error_variance, predict_measurements
 
 if TYPE_CHECKING:  # annotations only: base.run_filter imports this module
     from geofix.filters.base import Motion, Observation
@@ -75,6 +77,9 @@ class FilterSettings:
         Variance the offset gains per second, map units squared per second.
     representation_error : bool
         Add the map's representation error to every beam's variance.
+    swath_modes : bool
+        Marginalise a multibeam ping over the map error's tilt and curvature across the
+        swath (:class:`geofix.filters.nuisance.SwathModes`).
     adaptive_noise : bool
         Scale the measurement variance by the residual scale of the innovations.
     noise_forgetting : float
@@ -93,6 +98,7 @@ class FilterSettings:
     depth_bias_std: float | None = 0.0
     depth_bias_walk: float = 1e-3
     representation_error: bool = False
+    swath_modes: bool = False
     adaptive_noise: bool = False
     noise_forgetting: float = 0.98
     offset_per_hypothesis: bool | None = None
@@ -105,9 +111,10 @@ class FilterSettings:
         Parameters
         ----------
         map_model : str
-            ``exact``: unchanged. ``adaptive``: the representation error and the adaptive
-            residual scale switched on. ``imperfect``: those and the common offset (at the
-            map's default prior unless ``depth_bias_std`` is set).
+            ``exact``: unchanged. ``adaptive``: the representation error, the swath's
+            error shapes and the adaptive residual scale switched on. ``imperfect``:
+            those and the common offset (at the map's default prior unless
+            ``depth_bias_std`` is set).
 
         Returns
         -------
@@ -116,7 +123,7 @@ class FilterSettings:
         """
         if map_model not in ("adaptive", "imperfect"):
             return self
-        adaptive = replace(self, representation_error=True, adaptive_noise=True)
+        adaptive = replace(self, representation_error=True, swath_modes=True, adaptive_noise=True)
         if map_model == "adaptive":
             return adaptive
         std = None if self.depth_bias_std == 0 else self.depth_bias_std
@@ -304,6 +311,7 @@ class FilterStepper:
         self._profile_offset: bool | None = None  # offsets per hypothesis (first ping)
         self.scale = ResidualScale.prior(s.noise_forgetting)
         self._share = RepresentationShare.prior(s.noise_forgetting)
+        self._modes = SwathModes.prior(s.noise_forgetting)
         self._ping_variances: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
@@ -324,6 +332,12 @@ class FilterStepper:
         read = self._with_representation(obs)
         relative = self.offset.relative(read)
         weighed = self.scale.scaled(relative) if self.settings.adaptive_noise else relative
+        if self.settings.swath_modes:
+            shapes = swath_shapes(obs.offsets, np.isfinite(obs.values))
+            columns = self._modes.columns(shapes)
+            if columns is not None:
+                relative = replace(relative, map_modes=columns)
+                weighed = replace(weighed, map_modes=columns)
         return relative, weighed
 
     def fold(self, weighed: Observation, fields: tuple = ()) -> bool:
@@ -375,6 +389,8 @@ class FilterStepper:
         if self.settings.adaptive_noise and self._gaussian_enough(prior[1]):
             prior_mean, prior_cov = prior
             reads = read_at_points(self.grid, prior_mean, prior_cov, relative)
+            if self.settings.swath_modes:
+                self._learn_modes(weighed, prior_mean, prior_cov)
             if self._ping_variances is not None:
                 declared, extra = self._ping_variances
                 self._share = self._share.updated(reads, declared, extra, relative.bias_var)
@@ -393,6 +409,30 @@ class FilterStepper:
             mean, cov = self.filter.estimate(self.state)
             reads = read_at_points(self.grid, mean, cov, weighed)
             self.offset = self.offset.updated(reads, weighed.bias_var)
+
+    def _learn_modes(self, weighed: Observation, mean: np.ndarray, cov=None) -> None:
+        """The swath shapes' variance and persistence from a ping's innovations.
+
+        Read at the prior mean ``mean`` (metres), with the map's gradients at the beams
+        by central differences half a cell either side. The residual scale and the
+        representation share still see the shapes' part of the innovations (taken out
+        of theirs, the scale fell on block-mean maps and the particle filter lost a
+        trial in four there): a cautious double count.
+        """
+        h = 0.5 * self.grid.cell_size
+        points = np.asarray(mean, dtype=float) + np.array(
+            [[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]]
+        )
+        predicted = predict_measurements(self.grid, points, weighed.heading, weighed.offsets)
+        used = np.isfinite(weighed.values) & np.isfinite(predicted).all(axis=0)
+        shapes = swath_shapes(np.asarray(weighed.offsets, dtype=float)[used])
+        if shapes is None:
+            return
+        p = predicted[:, used]
+        gradients = np.column_stack([p[1] - p[2], p[3] - p[4]]) / (2.0 * h)
+        noise = np.broadcast_to(np.asarray(weighed.noise_var, dtype=float), used.shape)[used]
+        residual = weighed.values[used] - p[0]
+        self._modes = self._modes.updated(residual, shapes, gradients, noise, weighed.index, cov)
 
     @property
     def carries_offset(self) -> bool:

@@ -125,7 +125,9 @@ def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
     1/3 and 1/6): ``mean_b (y_b - yhat_b)^2 / (R_b + S_b)``. With a common-offset
     variance ``obs.bias_var = P`` the residual's covariance is ``diag(v) + P 1 1^T``
     (``v_b = R_b + S_b``) and the NIS is its quadratic form per beam,
-    ``(sum r^2 / v - P T^2 / (1 + P S)) / b`` (``S = sum 1 / v``, ``T = sum r / v``).
+    ``(sum r^2 / v - P T^2 / (1 + P S)) / b`` (``S = sum 1 / v``, ``T = sum r / v``);
+    with the swath's map-error shapes ``obs.map_modes`` (``Z``) the covariance is
+    ``diag(v) + P 1 1^T + Z Z^T``, its quadratic form by Woodbury's identity.
 
     Parameters
     ----------
@@ -155,9 +157,14 @@ def innovation_nis(grid: Grid, mean, cov, obs: Observation) -> float:
     residual, var = obs.values[use] - yhat, r + s
     with np.errstate(over="ignore", invalid="ignore"):  # a poisoned ping: an infinite NIS
         quad = float(np.sum(residual**2 / var))
+        columns = [] if obs.map_modes is None else [np.asarray(obs.map_modes)[use]]
         if obs.bias_var > 0:
-            t, total = float(np.sum(residual / var)), float(np.sum(1.0 / var))
-            quad -= obs.bias_var * t * t / (1.0 + obs.bias_var * total)
+            columns.insert(0, np.full((residual.size, 1), np.sqrt(obs.bias_var)))
+        if columns:  # Woodbury: r^T (V + Z Z^T)^-1 r
+            z = np.concatenate(columns, axis=1)
+            u = z.T @ (residual / var)
+            inner = np.eye(z.shape[1]) + (z / var[:, None]).T @ z
+            quad -= float(u @ np.linalg.solve(inner, u))
     return quad / residual.size
 
 

@@ -105,6 +105,12 @@ class NavigatorSettings:
         independent error across the ping (:func:`geofix.filters.nuisance.correlated_share`).
         Default off; on for a filter whose ``map_model`` is ``adaptive`` or
         ``imperfect`` (:meth:`for_map_model`).
+    swath_modes : bool
+        Marginalise each multibeam ping over the map error's tilt and curvature across
+        its swath, at the variance and persistence the innovations show
+        (:class:`geofix.filters.nuisance.SwathModes`; pings of fewer than
+        :data:`~geofix.filters.nuisance.MIN_SWATH_BEAMS` beams have none). Default off;
+        on for a filter whose ``map_model`` is ``adaptive`` or ``imperfect``.
     adaptive_noise : bool
         Estimate a factor on the measurement variance from the innovations
         (:class:`geofix.filters.nuisance.ResidualScale`): a map coarser than
@@ -214,6 +220,7 @@ class NavigatorSettings:
     depth_bias_std: float | None = 0.0
     depth_bias_walk: float = 1e-3
     representation_error: bool = False
+    swath_modes: bool = False
     adaptive_noise: bool = False
     noise_forgetting: float = 0.98
     offset_per_hypothesis: bool | None = None
