@@ -154,3 +154,33 @@ def test_a_batch_interrupted_by_ctrl_c_is_still_committed(tmp_path):
     with ResultStore(tmp_path) as reader:
         assert reader.done_keys("h1") == {("tercom", t) for t in range(3)}
     store.close()
+
+
+def test_scenario_hash_changes_with_the_code_that_runs_the_trials(monkeypatch):
+    """A store written by other code is not read as this code's."""
+    import geofix.evaluate.store as store_module
+
+    base = scenario_hash(_scenario())
+    digest = store_module.code_digest()
+    assert len(digest) == 64 and digest == store_module.code_digest()
+    monkeypatch.setattr(store_module, "code_digest", lambda: "0" * 64)
+    assert scenario_hash(_scenario()) != base
+
+
+def test_the_code_digest_reads_every_source_file(tmp_path, monkeypatch):
+    import geofix.evaluate.store as store_module
+
+    package = tmp_path / "geofix"
+    (package / "evaluate").mkdir(parents=True)
+    (package / "a.py").write_text("x = 1\n")
+    fake = package / "evaluate" / "store.py"
+    fake.write_text("")
+    monkeypatch.setattr(store_module, "__file__", str(fake))
+    store_module.code_digest.cache_clear()
+    try:
+        first = store_module.code_digest()
+        store_module.code_digest.cache_clear()
+        (package / "a.py").write_text("x = 2\n")
+        assert store_module.code_digest() != first
+    finally:
+        store_module.code_digest.cache_clear()

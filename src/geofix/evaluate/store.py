@@ -2,8 +2,8 @@
 
 Every finished trial is committed at once (write-ahead log), so a campaign that is killed
 loses nothing and a rerun with the same output folder skips what is done. Rows are keyed
-by the *scenario hash* (see :func:`scenario_hash`), so editing a scenario never mixes its
-old results with new ones.
+by the *scenario hash* (see :func:`scenario_hash`), so editing a scenario, its map or
+geofix's own code never mixes old results with new ones.
 
 Beside the ``trials`` table, the side table ``trial_bounds`` holds each trial's bounds
 and true end point (:class:`~geofix.evaluate.bounds.TrialInfo`): one row per (scenario
@@ -16,6 +16,7 @@ by the campaign). The campaign's summary is ``summary.json`` in the same folder
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import json
 import math
@@ -125,8 +126,10 @@ def scenario_hash(scenario: Scenario) -> str:
     -------
     str
         Hex SHA-256 of the canonical JSON of the scenario plus the SHA-256 of the map
-        file's content (:func:`file_digest`): a map replaced by other values of the same
-        size gives another hash, so stale results are never returned.
+        file's content (:func:`file_digest`) and of geofix's own code
+        (:func:`code_digest`): a map replaced by other values of the same size, or a
+        method changed since the results were stored, gives another hash, so stale
+        results are never returned.
 
     Raises
     ------
@@ -136,11 +139,33 @@ def scenario_hash(scenario: Scenario) -> str:
     data = scenario.model_dump(mode="json", exclude={"base_dir", "trials"})
     path = _map_file(scenario)
     data["_map_file"] = {"name": path.name, "sha256": file_digest(path)}
+    data["_code"] = code_digest()
     text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
 _DIGESTS: dict[tuple[str, int, int], str] = {}
+
+
+@functools.cache
+def code_digest() -> str:
+    """SHA-256 of geofix's own Python source, read once per process.
+
+    Every ``.py`` file of the installed package, in the order of their paths relative to
+    it, each path beside its content: a campaign's stored trials belong to the code that
+    ran them, and a store written by other code is not read as this code's.
+
+    Returns
+    -------
+    str
+        Hex SHA-256.
+    """
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(path.relative_to(root).as_posix().encode("utf-8") + b"\0")
+        digest.update(path.read_bytes() + b"\0")
+    return digest.hexdigest()
 
 
 def file_digest(path: str | Path) -> str:
