@@ -39,25 +39,28 @@ cells ({2 * CELL_M:g} m).
 
 
 READING = """
-How to read it: `converged at` is the first ping the navigator's test passed (largest
-1-sigma below two cells, MMSE within 50 m of the MLE and, for a grid or particle
-posterior, a KL divergence to its moment-matched Gaussian of at most 0.2 nats). The
-point-mass filter passes it at the first ping -- one 432-beam swath over this terrain pins
-the position -- and stays within two cells throughout; its remaining error (≈ 15 m at the
-end) sits at the survey's ends, where the gridded cells hold fewer pings. One 64-beam
-update is too sharp for a particle set on the 25 m prior lattice (applied at once it
-leaves one or a few particles, a cell or two off, far from Gaussian), so `pf` and `mpf`
-apply it in stages (progressive correction: a fraction of the likelihood that keeps 100
-effective particles, the copies spread over their original's share, the likelihood read
-again, up to four times) and pass the test at the first ping too. `mpf` carries the whole
-INS error state (velocity, tilt, biases, heading error; the model of the INS numbers the
-replay simulates, `geofix replay` builds it from them). The EKFs (`sitan`, `sitan-bank`)
-report a small covariance before their linearisation has found the right basin, so the
-same test (no KL term for an EKF) calls them converged early while they are still
-hundreds of metres off; `sitan` then settles (≈ 2-3 m at the end), while the NIS-window
-rule keeps re-initialising the bank (the re-inits column), which ends tens of metres off.
-The test trusts a filter's own covariance: it is a grid/particle-filter test, as it is in
-TRN.
+How to read it: `converged at` is the first ping the navigator's test passed: a small,
+resolved, near-Gaussian posterior (largest 1-sigma below two cells, MMSE within 50 m of
+the MLE and, for a grid or particle posterior, a KL divergence to its moment-matched
+Gaussian of at most 0.2 nats and at least 30 effective points) that the filter's own
+consistency supports (five accepted pings or more since the start, their mean NIS within
+its chi-square range, a move since earlier pings that the covariance allows, a fix the
+INS prior does not rule out, a residual scale below 25: `geofix.navigator.NavigatorSettings`).
+`pmf`, `pf` and `mpf` take the map as imperfect by default (representation error,
+residual scale, a common offset, the map error's tilt and curvature across the swath), so
+their covariance stays wide until the innovations support a narrow one, and they pass the
+test after five to thirty pings (the column), within two cells throughout. One 64-beam update is
+too sharp for a particle set on the 25 m prior lattice (applied at once it leaves one or a
+few particles, a cell or two off, far from Gaussian), so `pf` and `mpf` apply it in
+stages (progressive correction: a fraction of the likelihood that keeps 100 effective
+particles, the copies spread over their original's share, the likelihood read again, up
+to four times). `mpf` carries the whole INS error state (velocity, tilt, biases, heading
+error; the model of the INS numbers the replay simulates, `geofix replay` builds it from
+them). The EKFs (`sitan`, `sitan-bank`) take the map as exact and report a small
+covariance before their linearisation has found the right basin: `sitan` settles (≈ 2-3 m
+at the end), while the NIS-window rule re-initialises the bank again and again (the
+re-inits column) and it ends hundreds of metres off. The test trusts a filter's own
+covariance: it is a grid/particle-filter test, as it is in TRN.
 """
 
 
