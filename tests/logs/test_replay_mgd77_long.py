@@ -55,17 +55,27 @@ def test_the_estimate_follows_the_ins_motion_over_the_whole_track(long_replay):
     assert np.median(changed / ins_moved) < 0.5
 
 
+def test_the_long_track_claims_nothing_its_covariance_does_not_hold(long_replay):
+    inputs, ests = long_replay
+    converged = np.array([e.status == "converged" for e in ests])
+    scores = nees(ests, inputs.truth)
+    assert converged.sum() > 20  # it does claim: the test is not passed by silence
+    # 117 pings claimed converged beyond 3 sigma (44 km off with a 1-sigma of 9 km) before
+    # the filters took the relief the readings show and the map lacks as a map error
+    assert not (converged & (scores > NEES_3SIGMA)).any()
+    # and the covariance holds the error along the whole track, not only where it claims
+    assert np.mean(scores <= NEES_3SIGMA) > 0.95
+
+
 @pytest.mark.xfail(
     strict=True,
-    reason="against a 10' grid one depth a minute does not hold the position: pmf claims "
-    "converged on 117 pings while its error is beyond 3 sigma (44 km off with a 1-sigma of "
-    "9 km), and ends where the INS alone does (34.9 km) after 4 re-initialisations",
+    reason="against a 10' grid one depth a minute holds the position little better than the "
+    "INS: pmf follows the INS within its covariance (NEES about 1.4) and ends 37.1 km off, "
+    "the INS alone 34.9 km",
 )
-def test_the_long_track_ends_no_worse_than_the_ins_and_claims_nothing_false(long_replay):
+def test_the_long_track_ends_no_worse_than_the_ins(long_replay):
     inputs, ests = long_replay
     est = np.array([e.position for e in ests])
     end = np.hypot(*(est[-1] - inputs.truth[-1]))
     ins_end = np.hypot(*(inputs.indicated[-1] - inputs.truth[-1]))
-    converged = np.array([e.status == "converged" for e in ests])
-    false_claims = converged & (nees(ests, inputs.truth) > NEES_3SIGMA)
-    assert end <= ins_end and not false_claims.any()
+    assert end <= ins_end

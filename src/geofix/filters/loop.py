@@ -40,7 +40,9 @@ import numpy as np
 from geofix.errors import ConfigError
 from geofix.filters.convergence import posterior_points
 from geofix.filters.nuisance import (
+    ROUGHNESS_WINDOW_CELLS,
     CommonOffset,
+    ProfileRoughness,
     RepresentationShare,
     ResidualScale,
     SwathModes,
@@ -76,7 +78,8 @@ class FilterSettings:
     depth_bias_walk : float
         Variance the offset gains per second, map units squared per second.
     representation_error : bool
-        Add the map's representation error to every beam's variance.
+        Add the map's representation error to every beam's variance (its layer, and the
+        relief the readings show and the map lacks).
     swath_modes : bool
         Marginalise a multibeam ping over the map error's tilt and curvature across the
         swath (:class:`geofix.filters.nuisance.SwathModes`).
@@ -172,6 +175,9 @@ class FilterStepper:
         self.state: Any = None
         self._representation: Grid | None = None  # the map's representation error, on use
         self._last_ping_at: np.ndarray | None = None  # indicated position of the last ping
+        # the relief the readings show and the map lacks: of the seabed, kept on re-init
+        self.roughness = ProfileRoughness.empty()
+        self._value_range: tuple[float, float] | None = None  # readings the relief takes
         self.fields: tuple[FilterStepper, ...] = ()  # one per further field (start)
         self._field_index: int | None = None  # which further field this stepper is
         self._field_obs: tuple[tuple, ...] = ()  # (values, offsets, variance) per field
@@ -469,7 +475,10 @@ class FilterStepper:
         """``obs`` with the map's representation error added to each beam's variance.
 
         The layer's variance times the share the innovations support so far
-        (:class:`~geofix.filters.nuisance.RepresentationShare`).
+        (:class:`~geofix.filters.nuisance.RepresentationShare`), and at least the relief
+        the readings show along the track and the map lacks
+        (:class:`~geofix.filters.nuisance.ProfileRoughness`, counted once over its
+        window); each counted once for the beams and pings that share one error.
         """
         self._ping_variances = None
         if not self.settings.representation_error or self.state is None:
@@ -477,19 +486,47 @@ class FilterStepper:
         if self._representation is None:
             self._representation = representation_std(self.grid)
         mean, _ = self.filter.estimate(self.state)
-        extra = map_error_variance(self._representation, mean, obs.heading, obs.offsets)
-        if not extra.any():
-            return obs
         step = None
         if self._last_ping_at is not None:
             step = float(np.hypot(*(obs.indicated - self._last_ping_at)))
         self._last_ping_at = np.asarray(obs.indicated, dtype=float)
+        self._learn_roughness(obs, mean, step)
+        extra = map_error_variance(self._representation, mean, obs.heading, obs.offsets)
+        floor = self.roughness.variance
+        if not extra.any() and floor <= 0.0:
+            return obs
         # the innovations measure each beam's own variance: the share is fitted to the
         # layer as it is, and the beams that share one map error are counted once after
         declared = np.asarray(obs.noise_var, dtype=float)
         self._ping_variances = (declared, extra)
         counted = correlated_share(obs.offsets, self.grid.cell_size, step)
-        return replace(obs, noise_var=declared + self._share.value * counted * extra)
+        layer = counted * self._share.value * extra
+        # the relief the map lacks is measured over a window of track: shared across it
+        window = ROUGHNESS_WINDOW_CELLS * self.grid.cell_size
+        lacked = correlated_share(obs.offsets, window, step) * floor
+        return replace(obs, noise_var=declared + np.maximum(layer, lacked))
+
+    def _learn_roughness(self, obs: Observation, mean: np.ndarray, step: float | None) -> None:
+        """Fold the ping into :attr:`roughness`: its mean reading and the map's at ``mean``.
+
+        Both over the beams that read a value, the map at the footprints seen from the
+        current estimate ``mean`` (metres); ``step`` the distance since the last ping.
+        """
+        predicted = predict_measurements(self.grid, mean[None], obs.heading, obs.offsets)[0]
+        used = np.isfinite(obs.values) & np.isfinite(predicted)
+        if not used.any():
+            return
+        with np.errstate(all="ignore"):  # a poisoned reading (1e308) is left out below
+            measured = float(obs.values[used].mean())
+        if self._value_range is None:
+            self._value_range = _plausible_range(self.grid)
+        low, high = self._value_range
+        if not low <= measured <= high:
+            return
+        window = ROUGHNESS_WINDOW_CELLS * self.grid.cell_size
+        self.roughness = self.roughness.updated(
+            step, measured, float(predicted[used].mean()), window
+        )
 
     def _gaussian_enough(self, cov: np.ndarray) -> bool:
         """Whether the position prior is narrow enough to measure the residual scale.
@@ -500,6 +537,21 @@ class FilterStepper:
         """
         sigma = float(np.sqrt(max(float(np.linalg.eigvalsh(cov).max()), 0.0)))
         return sigma <= 2.0 * self.grid.cell_size
+
+
+def _plausible_range(grid: Grid) -> tuple[float, float]:
+    """Readings the relief along the track takes in: the map's range widened by itself.
+
+    A reading beyond it (a poisoned or garbled value that the input checks let through)
+    would otherwise raise the relief floor for a whole window.
+    """
+    values = np.asarray(grid.values, dtype=float)
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return (-np.inf, np.inf)
+    low, high = float(finite.min()), float(finite.max())
+    spread = max(high - low, 1.0)
+    return (low - spread, high + spread)
 
 
 __all__ = ["FilterSettings", "FilterStepper"]

@@ -771,6 +771,160 @@ def representation_std(grid: Grid) -> Grid:
     return grid.with_values(std)
 
 
+#: Length of the along-track window over which :class:`ProfileRoughness` measures the relief
+#: the readings show and the map lacks, in map cells. On three ship tracks against a 10'
+#: global grid, 1, 2 and 4 cells caught 0.3-0.6, 0.5-0.7 and 0.6-0.8 of the map's rms error
+#: at the true track; a wider window lets the map's own relief at the track into it.
+ROUGHNESS_WINDOW_CELLS = 4.0
+#: Fewest pings over a window for its relief to be measured.
+MIN_ROUGHNESS_PINGS = 12
+#: Most pings kept in the window (a vehicle at rest, or pinging far faster than it moves
+#: across a cell, keeps the newest).
+MAX_ROUGHNESS_PINGS = 512
+#: Largest lag-one correlation of a window's departures taken in its variance's correction.
+MAX_ROUGHNESS_RHO = 0.95
+#: A window counts the relief its map lacks only where the map shows less than this share of
+#: the readings' relief. A map that shows more (block means of the seabed, the seabed itself)
+#: has its error described by its own layer (:func:`representation_std`); two samples of the
+#: same relief differ by chance by tens of percent over a window, which would otherwise raise
+#: a floor on a map that lacks nothing.
+LACKING_SHARE = 0.5
+#: Weight kept per ping by :class:`ProfileRoughness`'s running sums.
+ROUGHNESS_FORGETTING = 0.998
+
+
+@dataclass(frozen=True)
+class ProfileRoughness:
+    """The relief the readings show along the track and the map does not: a map-error floor.
+
+    A map gridded coarser than the seabed's relief, or smoothed, lacks the relief below
+    its resolution, and its own layer (:func:`representation_std`, from the map's
+    curvature) cannot see what was never in it. The readings can: over the last
+    :data:`ROUGHNESS_WINDOW_CELLS` cells of track, the ping means' departure from a
+    quadratic in along-track distance is the seabed's relief at scales below the window;
+    the same departure of the map read at the estimate along the same pings is the map's.
+    Each is taken without its white part (half the mean square of consecutive
+    departures' differences: sensor noise, uncorrelated from ping to ping), and their
+    difference ``V`` is the correlated relief the map lacks, counted where the map shows
+    less than :data:`LACKING_SHARE` of it. A window still filling (from its first
+    :data:`MIN_ROUGHNESS_PINGS` pings) gives a first ``V``: the relief below the track run
+    so far, scaled to the window as a Brownian profile's grows (in proportion to the span)
+    and weighed by its share of the window. A shift of the track changes
+    which relief the map shows, not how much, so ``V`` does not depend on where the filter
+    thinks it is; it is averaged over windows with forgetting, and the filters take each
+    beam's map-error variance as at least ``V``.
+
+    Parameters
+    ----------
+    distance, measured, mapped : numpy.ndarray
+        ``(k,)`` the window's pings: along-track distance (metres), mean reading and the
+        map's mean reading at the estimate over the same beams (map units).
+    num, white_num, den : float
+        Running sums of the windows' ``V`` and white parts (map units squared) and of
+        their weights.
+    forgetting : float
+        Weight of the sums kept per ping, in ``(0, 1]``.
+    """
+
+    distance: np.ndarray
+    measured: np.ndarray
+    mapped: np.ndarray
+    num: float = 0.0
+    white_num: float = 0.0
+    den: float = 0.0
+    forgetting: float = ROUGHNESS_FORGETTING
+
+    @classmethod
+    def empty(cls, forgetting: float = ROUGHNESS_FORGETTING) -> ProfileRoughness:
+        """No pings yet: a floor of 0."""
+        none = np.empty(0)
+        return cls(none, none, none, forgetting=float(forgetting))
+
+    @property
+    def variance(self) -> float:
+        """The floor ``V`` under each beam's map-error variance, map units squared."""
+        return max(self.num / self.den, 0.0) if self.den > 0 else 0.0
+
+    @property
+    def white(self) -> float:
+        """The readings' white departure beyond the map's, per ping, map units squared."""
+        return max(self.white_num / self.den, 0.0) if self.den > 0 else 0.0
+
+    def updated(
+        self, step_m: float | None, measured: float, mapped: float, window_m: float
+    ) -> ProfileRoughness:
+        """Add a ping and fold in its window's relief when the window is full.
+
+        Parameters
+        ----------
+        step_m : float or None
+            Distance along the track since the previous ping, metres (None: the first).
+        measured, mapped : float
+            The ping's mean reading and the map's mean at the estimate over the same
+            beams, map units; a non-finite one leaves the state.
+        window_m : float
+            The window's length, metres.
+        """
+        if not (np.isfinite(measured) and np.isfinite(mapped)):
+            return self
+        step = float(step_m) if step_m is not None and np.isfinite(step_m) else 0.0
+        last = float(self.distance[-1]) if self.distance.size else 0.0
+        distance = np.append(self.distance, last + max(step, 0.0))[-MAX_ROUGHNESS_PINGS:]
+        keep = distance >= distance[-1] - window_m
+        state = replace(
+            self,
+            distance=distance[keep],
+            measured=np.append(self.measured, measured)[-MAX_ROUGHNESS_PINGS:][keep],
+            mapped=np.append(self.mapped, mapped)[-MAX_ROUGHNESS_PINGS:][keep],
+        )
+        span = float(state.distance[-1] - state.distance[0])
+        if state.distance.size < MIN_ROUGHNESS_PINGS or span <= 0.0:
+            return state
+        s = (state.distance - state.distance.mean()) / max(span, 1e-9)
+        seen, seen_white = _relief(s, state.measured)
+        shown, shown_white = _relief(s, state.mapped)
+        seen_relief, shown_relief = seen - seen_white, shown - shown_white
+        lacked = seen_relief - shown_relief
+        if seen_relief > 0.0 and shown_relief >= LACKING_SHARE * seen_relief:
+            lacked = 0.0  # the map has the relief: its own layer describes its error
+        white = seen_white - shown_white
+        if not (np.isfinite(lacked) and np.isfinite(white)):
+            return state
+        # a window still filling holds the relief below its span: taken as growing in
+        # proportion to the span up to the window's (a Brownian profile), at the weight
+        # of its share of the window, so the first full windows soon outweigh it
+        share = min(span / window_m, 1.0)
+        lam = self.forgetting
+        return replace(
+            state,
+            num=lam * self.num + lacked,
+            white_num=lam * self.white_num + share * white,
+            den=lam * self.den + share,
+        )
+
+
+def _relief(s: np.ndarray, values: np.ndarray) -> tuple[float, float]:
+    """Variance of ``values``' departure from a quadratic in ``s``, and its white part.
+
+    The variance is corrected for what the quadratic takes of correlated departures (an
+    AR(1) of the residuals' lag-one correlation, at most :data:`MAX_ROUGHNESS_RHO`, and
+    never more than half the window). The white part is half the mean square of
+    consecutive departures' differences (what an error independent from one value to the
+    next adds), map units squared.
+    """
+    design = np.column_stack([np.ones_like(s), s, s * s])
+    coef, _, rank, _ = np.linalg.lstsq(design, values, rcond=None)
+    resid = values - design @ coef
+    square = float(resid @ resid)
+    # a quadratic fitted to correlated departures takes more than its rank of their
+    # variance: about rank (1 + rho) / (1 - rho) for a lag-one correlation rho
+    rho = float(resid[1:] @ resid[:-1]) / square if square > 0 else 0.0
+    rho = min(max(rho, 0.0), MAX_ROUGHNESS_RHO)
+    taken = min(int(rank) * (1.0 + rho) / (1.0 - rho), 0.5 * values.size)
+    total = square / max(values.size - taken, 1.0)
+    return total, 0.5 * float(np.mean(np.diff(resid) ** 2))
+
+
 #: Most pings that one map error is counted across (a vehicle at rest would otherwise
 #: discount its readings without end). A ship's single beam against a 10' grid reads one
 #: map cell about 40 times; a cap of 10 counted each map error 4 times over.
@@ -819,6 +973,7 @@ __all__ = [
     "MAP_MODELS",
     "CommonOffset",
     "PointReads",
+    "ProfileRoughness",
     "RepresentationShare",
     "ResidualScale",
     "SwathModes",

@@ -102,9 +102,10 @@ class NavigatorSettings:
         variance: :func:`geofix.filters.nuisance.representation_std` read at the beam's
         footprint from the current estimate, times the share the innovations support
         (:class:`geofix.filters.nuisance.RepresentationShare`) and the beams per
-        independent error across the ping (:func:`geofix.filters.nuisance.correlated_share`).
-        Default off; on for a filter whose ``map_model`` is ``adaptive`` or
-        ``imperfect`` (:meth:`for_map_model`).
+        independent error across the ping (:func:`geofix.filters.nuisance.correlated_share`),
+        and at least the relief the readings show along the track and the map lacks
+        (:class:`geofix.filters.nuisance.ProfileRoughness`). Default off; on for a filter
+        whose ``map_model`` is ``adaptive`` or ``imperfect`` (:meth:`for_map_model`).
     swath_modes : bool
         Marginalise each multibeam ping over the map error's tilt and curvature across
         its swath, at the variance and persistence the innovations show
