@@ -43,6 +43,7 @@ def load_sections() -> dict:
             continue
         spec = importlib.util.spec_from_file_location(f"sections.{path.stem}", path)
         module = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = module  # so a worker process can unpickle its functions
         spec.loader.exec_module(module)
         modules[path.stem] = module
     return dict(sorted(modules.items(), key=lambda kv: getattr(kv[1], "ORDER", 100)))
