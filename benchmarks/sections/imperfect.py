@@ -20,6 +20,15 @@ METHODS = (
     "pmf:model=errstate",
     "tercom",
 )
+#: Further rows per scenario: the setting that weighs a faster offset walk beside the
+#: declared one (it acts on pings of one or two beams, so on the gravimeter only).
+EXTRA_METHODS = {
+    "imperfect_gravity": (
+        "pmf:fast_offset_walk=10",
+        "pf:fast_offset_walk=10",
+        "mpf:fast_offset_walk=10",
+    ),
+}
 #: Each row's seabed: block, per bundled scenario (None: the prior is the seabed).
 ROWS = {
     "imperfect_depth": {
@@ -69,11 +78,12 @@ def build(quick: bool) -> str:
         table, bounds = [], []
         for label, seabed in rows.items():
             scen = _with_seabed(base, label, seabed)
-            result = campaign(scen, list(METHODS), trials=trials, jobs=2)
+            methods = METHODS + EXTRA_METHODS.get(name, ())
+            result = campaign(scen, list(methods), trials=trials, jobs=2)
             cell = float(base.map.resample_m) * (seabed or {}).get("cell_factor", 1)
             bound, aware = _bound_m(scen, trials)
             best = ("-", float("inf"))
-            for spec in METHODS:
+            for spec in methods:
                 rms, *rest = _cells(result.frame, spec, cell)
                 table.append([label, spec, rms, _ratio(rms, bound), _ratio(rms, aware), *rest])
                 if spec in DEFAULT_FILTERS and _number(rms) < best[1]:
@@ -283,7 +293,13 @@ def _reading() -> str:
         "error's shapes across the swath (`SwathModes`) keep the correlated error from "
         "drawing the filters away; on block means part of the cells' representation error "
         "reads as such shapes too, and the filters give up some of the information the "
-        "swath's tilt carries there. Where a row "
+        "swath's tilt carries there. On the gravity rows a map error correlated over "
+        "kilometres reads, along the track, as an offset that moves faster than a "
+        "gravimeter drifts: the `fast_offset_walk=10` rows weigh a walk ten times the "
+        "declared one beside it, each hypothesis by its own residuals, and keep the "
+        "covariance honest there; it is not the default because on the real ship tracks "
+        "against ETOPO1 (its own section) the same freedom lets a wrong stretch of the "
+        "grid match a depth profile, and the claims beyond 3 sigma rise. Where a row "
         "still shows false fixes or a NEES above 5, the model does not yet hold there: the "
         "open work is listed in the imperfect-maps issue. A ratio below 1 to the "
         "offset-aware bound is no contradiction: that bound averages over offsets drawn "

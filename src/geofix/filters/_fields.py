@@ -36,7 +36,9 @@ def started_offsets(filt, state, fields) -> tuple:
     out = list(state.field_offsets) + [None] * (len(fields) - len(state.field_offsets))
     for i, (field_obs, _) in enumerate(fields):
         if out[i] is None and filt.carries_offset and np.isfinite(field_obs.values).any():
-            out[i] = HypothesisOffset.start(state.log_weight.shape, field_obs)
+            out[i] = HypothesisOffset.start(
+                state.log_weight.shape, field_obs, filt.offset_walk_factors
+            )
     return tuple(out)
 
 
@@ -73,7 +75,10 @@ def update_particle_fields(
     if not (primary or any(valid)):
         return state
     if primary and filt.carries_offset and state.offset is None:
-        state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
+        state = replace(
+            state,
+            offset=HypothesisOffset.start(state.log_weight.shape, obs, filt.offset_walk_factors),
+        )
     state = replace(state, field_offsets=started_offsets(filt, state, fields))
     model = filt.likelihood
 

@@ -14,9 +14,21 @@ removed does.
 
 ``P`` is common to the hypotheses: after a ping of ``n`` beams of variance ``v`` it is
 ``P / (1 + P sum 1/v)`` for every hypothesis that read them all, and it grows by
-``walk * dt`` between pings (a random walk, so an offset that drifts is followed). The
-hypotheses are moved, resampled, convolved and regridded by their filter; this value
-follows them (:meth:`HypothesisOffset.take`, :func:`mixed_offsets`).
+``walk * dt`` between pings (a random walk, so an offset that drifts is followed).
+
+How fast the offset walks is not always known in advance: a tide or a gravimeter drifts
+slowly, and a map error correlated over kilometres reads, along a track, as an offset that
+moves many times faster. A filter given a second, faster rate (``fast_offset_walk``,
+:func:`walk_factors`) has each hypothesis carry one such filter per rate and each rate's
+probability, multiplied at
+every ping by the likelihood of its residuals under that rate: the hypothesis's
+likelihood is the mixture over the rates (:meth:`HypothesisOffset.marginal`), the exact
+Bayesian answer for a rate that is one of them and fixed along a hypothesis's path, with
+:data:`WALK_RETURN` of the prior given back each ping so that a rate set aside can return.
+
+The hypotheses are moved, resampled, convolved and regridded by their filter; these
+values follow them (:meth:`HypothesisOffset.take`, :meth:`HypothesisOffset.mixed`,
+:meth:`HypothesisOffset.regridded`).
 """
 
 from __future__ import annotations
@@ -25,7 +37,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage
+from scipy.special import logsumexp
 
+from geofix.errors import ConfigError
 from geofix.filters._grid_ops import node_positions
 from geofix.filters.base import Observation
 from geofix.maps.grid import Grid
@@ -33,27 +47,77 @@ from geofix.measurement import predict_measurements
 from geofix.memory import cells_bytes, check_allocation
 
 
-@dataclass(frozen=True)
-class HypothesisOffset:
-    """Each hypothesis's offset mean and the common variance, map units.
+def walk_factors(fast: float) -> tuple[float, ...]:
+    """The walk rates a hypothesis weighs, as factors on the declared walk.
 
     Parameters
     ----------
-    mean : numpy.ndarray
-        Offset mean of each hypothesis (measured minus map), map units; the shape of the
-        filter's hypotheses (``(M,)`` particles, ``(N0, N1)`` nodes).
-    var : float
-        Variance of every hypothesis's offset, map units squared.
-    walk : float
-        Variance gained per second, map units squared per second.
+    fast : float
+        A second, faster rate as a factor on the declared walk (0: the declared rate
+        alone). A map error correlated over kilometres reads, along a track, as an offset
+        that moves faster than a tide or a gravimeter drifts.
+
+    Returns
+    -------
+    tuple of float
+        ``(1,)`` or ``(1, fast)``.
+    """
+    if not (np.isfinite(fast) and (fast == 0 or fast > 1)):
+        raise ConfigError(f"fast_offset_walk must be 0 or a factor above 1, got {fast}")
+    return (1.0,) if fast == 0 else (1.0, float(fast))
+
+
+#: Share of each walk's prior probability a hypothesis gets back at every ping, so that a
+#: walk it set aside can return where the map's error changes its character.
+WALK_RETURN = 0.01
+
+
+@dataclass(frozen=True)
+class HypothesisOffset:
+    """Each hypothesis's offset under each of a few walk rates, map units.
+
+    A hypothesis carries one Kalman filter of its offset per walk rate and the
+    probability of each rate given its own residuals (a multiple-model filter whose rate
+    is fixed along a hypothesis's path, with :data:`WALK_RETURN` of the prior given back
+    each ping). Its likelihood is the mixture over the rates.
+
+    Parameters
+    ----------
+    means : numpy.ndarray
+        ``(K, ...)`` offset mean of each rate and hypothesis (measured minus map), map
+        units; ``...`` the shape of the filter's hypotheses (``(M,)`` particles,
+        ``(N0, N1)`` nodes).
+    variances : numpy.ndarray
+        ``(K,)`` variance of every hypothesis's offset under each rate, map units squared.
+    walks : numpy.ndarray
+        ``(K,)`` variance each rate gains per second, map units squared per second.
+    log_prob : numpy.ndarray
+        ``(K, ...)`` log-probability of each rate for each hypothesis (summing to one
+        over ``K``).
+    stationary : float
+        The offset's stationary variance, map units squared (inf: a random walk). Each
+        rate is then a first-order Gauss-Markov process about zero that gains ``walk *
+        dt`` over a short ``dt`` and never wanders beyond its prior: a fast rate follows a
+        map error that comes and goes along the track without carrying the offset far
+        from the level the readings and the map share.
     """
 
-    mean: np.ndarray
-    var: float
-    walk: float
+    means: np.ndarray
+    variances: np.ndarray
+    walks: np.ndarray
+    log_prob: np.ndarray
+    stationary: float = float("inf")
 
     @classmethod
-    def start(cls, shape, obs: Observation) -> HypothesisOffset | None:
+    def single(cls, mean, var: float, walk: float) -> HypothesisOffset:
+        """One walk rate: each hypothesis's offset ``N(mean_i, var)``."""
+        mean = np.asarray(mean, dtype=float)
+        return cls(
+            mean[None], np.array([float(var)]), np.array([float(walk)]), np.zeros((1, *mean.shape))
+        )
+
+    @classmethod
+    def start(cls, shape, obs: Observation, factors=(1.0,)) -> HypothesisOffset | None:
         """The prior ``N(0, obs.bias_var)`` for every hypothesis, or None without one.
 
         Parameters
@@ -63,18 +127,76 @@ class HypothesisOffset:
         obs : Observation
             The first ping: ``bias_var`` the offset's prior variance, ``bias_walk`` its
             growth per second; None unless ``bias_per_hypothesis`` and ``bias_var > 0``.
+        factors : sequence of float
+            The walk rates as factors on ``bias_walk`` (:func:`walk_factors`), equally
+            likely a priori; one rate where the walk is 0. With more than one, each rate
+            is a Gauss-Markov process whose stationary variance is ``bias_var``: a fast
+            rate follows an error that comes and goes without carrying the offset far
+            from the level the readings and the map share.
         """
         if not (obs.bias_per_hypothesis and obs.bias_var > 0):
             return None
-        return cls(np.zeros(shape), float(obs.bias_var), float(obs.bias_walk))
+        shape = (shape,) if np.ndim(shape) == 0 else tuple(shape)
+        walk = float(obs.bias_walk)
+        factors = np.asarray(factors, dtype=float)
+        k = 1 if walk <= 0 else factors.size
+        factors = factors[:k]
+        log_prior = np.full((k, *([1] * len(shape))), -np.log(k))
+        return cls(
+            np.zeros((k, *shape)),
+            np.full(k, float(obs.bias_var)),
+            walk * factors,
+            np.broadcast_to(log_prior, (k, *shape)).copy(),
+            float(obs.bias_var) if k > 1 else float("inf"),
+        )
+
+    @property
+    def models(self) -> int:
+        """How many walk rates each hypothesis weighs."""
+        return int(self.walks.size)
+
+    @property
+    def mean(self) -> np.ndarray:
+        """Each hypothesis's offset mean over its rates, map units."""
+        return np.sum(np.exp(self.log_prob) * self.means, axis=0)
 
     def predicted(self, dt: float) -> HypothesisOffset:
-        """The offsets ``dt`` seconds later: the variance grows by ``walk * dt``."""
-        return replace(self, var=self.var + self.walk * max(float(dt), 0.0))
+        """The offsets ``dt`` seconds later.
+
+        A random walk's variance grows by ``walk * dt``. With a finite
+        :attr:`stationary` variance ``s`` each rate decays towards zero with the time
+        constant ``2 s / walk``: ``b <- a b``, ``P <- a^2 P + s (1 - a^2)``, ``a = exp(-dt
+        walk / (2 s))``.
+        """
+        dt = max(float(dt), 0.0)
+        if not np.isfinite(self.stationary):
+            return replace(self, variances=self.variances + self.walks * dt)
+        a = np.exp(-dt * self.walks / (2.0 * self.stationary))
+        return replace(
+            self,
+            means=self.means * a.reshape(-1, *([1] * (self.means.ndim - 1))),
+            variances=a * a * self.variances + self.stationary * (1.0 - a * a),
+        )
 
     def take(self, index) -> HypothesisOffset:
         """The offsets of the hypotheses ``index`` (a resample's copies)."""
-        return replace(self, mean=self.mean[index])
+        return replace(self, means=self.means[:, index], log_prob=self.log_prob[:, index])
+
+    def marginal(self, log_likelihood) -> np.ndarray:
+        """A ping's log-likelihood of each hypothesis, marginalised over its rates.
+
+        Parameters
+        ----------
+        log_likelihood : callable
+            ``log_likelihood(var, mean)``: the ping's log-likelihoods (nats, the
+            hypotheses' shape) marginalised over the offset ``N(mean_i, var)``.
+        """
+        if self.models == 1:
+            return log_likelihood(float(self.variances[0]), self.means[0])
+        each = np.stack(
+            [log_likelihood(float(v), b) for v, b in zip(self.variances, self.means, strict=True)]
+        )
+        return logsumexp(each + self.log_prob, axis=0)
 
     def moments(self, weights) -> tuple[float, float]:
         """Mean and variance of the offset over the posterior ``weights`` (summing to one).
@@ -82,27 +204,35 @@ class HypothesisOffset:
         Returns
         -------
         tuple of float
-            ``sum w_i b_i`` and ``P + sum w_i (b_i - bbar)^2``, map units and squared.
+            ``sum_i w_i sum_k p_ik b_ik`` and the mixture's variance about it (each
+            rate's variance and the spread of the means), map units and squared.
         """
-        w = np.asarray(weights, dtype=float).reshape(-1)
-        b = self.mean.reshape(-1)
-        mean = float(w @ b)
-        return mean, self.var + float(w @ (b - mean) ** 2)
+        w = np.asarray(weights, dtype=float).reshape(1, -1) * np.exp(self.log_prob).reshape(
+            self.models, -1
+        )
+        b = self.means.reshape(self.models, -1)
+        mean = float(np.sum(w * b))
+        spread = float(np.sum(w * (b - mean) ** 2))
+        return mean, float(np.sum(w.sum(axis=1) * self.variances)) + spread
 
     def updated(self, grid: Grid, positions, obs: Observation, predicted=None) -> HypothesisOffset:
-        """Each hypothesis's offset after the ping (a scalar Kalman step per hypothesis).
+        """Each hypothesis's offsets after the ping (a scalar Kalman step per rate).
 
-        ``b_i <- b_i + P T_i / (1 + P S_i)``, ``T_i = sum (y - h_i - b_i) / v``,
-        ``S_i = sum 1 / v`` over the hypothesis's valid beams; ``P <- P / (1 + P S)`` with
-        ``S`` the most any hypothesis had (those that read the whole ping).
+        ``b_ik <- b_ik + P_k T_ik / (1 + P_k S_i)``, ``T_ik = sum (y - h_i - b_ik) / v``,
+        ``S_i = sum 1 / v`` over the hypothesis's valid beams; ``P_k <- P_k / (1 + P_k S)``
+        with ``S`` the most any hypothesis had (those that read the whole ping). Each
+        rate's probability is multiplied by the ping's likelihood under it,
+        ``exp(-(R_ik - P_k T_ik^2 / (1 + P_k S_i)) / 2) / sqrt(1 + P_k S_i)`` with
+        ``R_ik = sum (y - h_i - b_ik)^2 / v``, and :data:`WALK_RETURN` of the prior is
+        given back.
 
         Parameters
         ----------
         grid : Grid
             The prior map.
         positions : numpy.ndarray
-            ``(..., 2)`` the hypotheses after the ping's weighting, metres, in the shape of
-            :attr:`mean`.
+            ``(..., 2)`` the hypotheses after the ping's weighting, metres, in the
+            hypotheses' shape.
         obs : Observation
             The ping, with the variance it was weighed with.
         predicted : numpy.ndarray, optional
@@ -112,7 +242,9 @@ class HypothesisOffset:
         positions = np.asarray(positions, dtype=float)
         count = int(np.prod(positions.shape[:-1]))
         beams = int(np.isfinite(obs.values).sum())
-        check_allocation(cells_bytes(count * max(beams, 1), copies=3), "per-hypothesis offsets")
+        check_allocation(
+            cells_bytes(count * max(beams, 1) * self.models, copies=3), "per-hypothesis offsets"
+        )
         use = np.isfinite(obs.values)
         if predicted is None:
             offsets = np.asarray(obs.offsets, dtype=float)[use]
@@ -122,16 +254,78 @@ class HypothesisOffset:
             predicted = np.asarray(predicted, dtype=float)[..., use]
         predicted = predicted.reshape(count, -1)
         var = np.broadcast_to(np.asarray(obs.noise_var, dtype=float), obs.values.shape)[use]
-        residual = obs.values[use] - predicted - self.mean.reshape(-1, 1)
+        # (K, count, beams): each rate's residuals
+        residual = obs.values[use] - predicted - self.means.reshape(self.models, count, 1)
         valid = np.isfinite(residual)
         w = np.where(valid, 1.0 / var, 0.0)
-        s = w.sum(axis=1)
-        t = (w * np.where(valid, residual, 0.0)).sum(axis=1)
-        mean = self.mean.reshape(-1) + self.var * t / (1.0 + self.var * s)
+        r = np.where(valid, residual, 0.0)
+        s = w.sum(axis=2)
+        t = (w * r).sum(axis=2)
+        p = self.variances.reshape(-1, 1)
+        gain = 1.0 + p * s
+        means = self.means.reshape(self.models, -1) + p * t / gain
         most = float(s.max()) if s.size else 0.0
+        log_prob = self.log_prob.reshape(self.models, -1)
+        if self.models > 1:
+            ll = -0.5 * ((w * r * r).sum(axis=2) - p * t * t / gain) - 0.5 * np.log(gain)
+            log_prob = _returned(log_prob + ll, self._log_prior())
+        shape = self.means.shape
         return replace(
-            self, mean=mean.reshape(self.mean.shape), var=self.var / (1.0 + self.var * most)
+            self,
+            means=means.reshape(shape),
+            variances=self.variances / (1.0 + self.variances * most),
+            log_prob=log_prob.reshape(shape),
         )
+
+    def _log_prior(self) -> np.ndarray:
+        """``(K, 1)`` the rates' prior log-probabilities (equal)."""
+        return np.full((self.models, 1), -np.log(self.models))
+
+    def mixed(self, log_weight: np.ndarray, kernels) -> HypothesisOffset:
+        """The node offsets after the point-mass prediction's convolution.
+
+        Each rate's mass at a node is the node's mass times the rate's probability; the
+        rate's mean and probability where the mass arrives are moment-matched
+        (:func:`mixed_offsets`).
+        """
+        means = np.stack(
+            [
+                mixed_offsets(log_weight + lp, b, kernels)
+                for lp, b in zip(self.log_prob, self.means, strict=True)
+            ]
+        )
+        if self.models == 1:
+            return replace(self, means=means)
+        mass = np.exp(log_weight - np.max(log_weight))
+        arrived = np.stack([_convolved(mass * np.exp(lp), kernels) for lp in self.log_prob])
+        total = arrived.sum(axis=0)
+        ok = total > 1e-300
+        log_prob = np.where(
+            ok, np.log(np.maximum(arrived, 1e-300) / np.where(ok, total, 1.0)), self.log_prob
+        )
+        return replace(self, means=means, log_prob=log_prob - logsumexp(log_prob, axis=0))
+
+    def regridded(self, old, new, shape) -> HypothesisOffset:
+        """The node offsets moved from grid ``old`` onto ``new`` (:func:`regridded_offsets`)."""
+        means = np.stack([regridded_offsets(b, old, new, shape) for b in self.means])
+        if self.models == 1:
+            return replace(self, means=means, log_prob=np.zeros_like(means))
+        log_prob = np.stack([regridded_offsets(lp, old, new, shape) for lp in self.log_prob])
+        return replace(self, means=means, log_prob=log_prob - logsumexp(log_prob, axis=0))
+
+
+def _returned(log_prob: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
+    """``(K, N)`` normalised rate probabilities with :data:`WALK_RETURN` of the prior back."""
+    post = log_prob - logsumexp(log_prob, axis=0)
+    return np.logaddexp(np.log1p(-WALK_RETURN) + post, np.log(WALK_RETURN) + log_prior)
+
+
+def _convolved(mass: np.ndarray, kernels) -> np.ndarray:
+    """``conv(mass)`` along each grid axis (the point-mass prediction's kernels)."""
+    p = mass
+    for axis, kernel in enumerate(kernels):
+        p = ndimage.convolve1d(p, kernel, axis=axis, mode="constant")
+    return p
 
 
 def mixed_offsets(log_weight: np.ndarray, mean: np.ndarray, kernels) -> np.ndarray:
@@ -192,4 +386,10 @@ def regridded_offsets(mean: np.ndarray, old, new, shape) -> np.ndarray:
     return ndimage.map_coordinates(mean, [rows, cols], order=1, mode="nearest")
 
 
-__all__ = ["HypothesisOffset", "mixed_offsets", "regridded_offsets"]
+__all__ = [
+    "WALK_RETURN",
+    "HypothesisOffset",
+    "mixed_offsets",
+    "regridded_offsets",
+    "walk_factors",
+]

@@ -136,18 +136,22 @@ class TerrainLikelihood:
         """
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         args = (obs.heading, obs.offsets, obs.values)
-        bias_var, shift = obs.bias_var, None
-        if offset is not None:  # each particle's own offset, N(b_i, P)
-            bias_var, shift = offset.var, offset.mean
         modes = obs.map_modes
-        if self.discretisation_noise and spacing > 0:
-            if self._local_share(spacing, cell):
+        local = self.discretisation_noise and spacing > 0 and self._local_share(spacing, cell)
+        if self.discretisation_noise and spacing > 0 and not local:
+            var = var + spread_field_variance(grid, positions, spacing, obs, rng)
+
+        def given(bias_var, shift) -> np.ndarray:
+            if local:
                 sides = spacing * np.eye(2)
                 return local_field_log_likelihood(
                     grid, positions, *args, var, sides, bias_var, shift, modes
                 )
-            var = var + spread_field_variance(grid, positions, spacing, obs, rng)
-        return hypotheses_log_likelihood(grid, positions, *args, var, bias_var, shift, modes)
+            return hypotheses_log_likelihood(grid, positions, *args, var, bias_var, shift, modes)
+
+        if offset is None:
+            return given(obs.bias_var, None)
+        return offset.marginal(given)  # each particle's own offsets, N(b_ik, P_k)
 
     def nodes(
         self, grid: Grid, obs: Observation, state: PmfState
@@ -223,24 +227,26 @@ class TerrainLikelihood:
     def _nodes_with_offsets(
         self, grid: Grid, obs: Observation, state: PmfState, offset: HypothesisOffset, local
     ) -> tuple[np.ndarray, HypothesisOffset]:
-        """Marginalised over each node's own offset ``N(b_i, P)``, then the offsets' update.
+        """Marginalised over each node's own offsets ``N(b_ik, P_k)``, then their update.
 
         The nodes' predictions are read once for both (the local field variance reads its
         own, with the nodes' sides).
         """
         xy = ops.node_positions(*state.frame, state.shape)
         predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
-        if local:
-            sides = (state.axes * state.spacing).T
-            args = (obs.heading, obs.offsets, obs.values, obs.noise_var, sides)
-            ll = local_field_log_likelihood(grid, xy, *args, offset.var, offset.mean, obs.map_modes)
-        else:
-            shifted = predicted + offset.mean[..., None]
+
+        def given(bias_var, shift) -> np.ndarray:
+            if local:
+                sides = (state.axes * state.spacing).T
+                args = (obs.heading, obs.offsets, obs.values, obs.noise_var, sides)
+                return local_field_log_likelihood(grid, xy, *args, bias_var, shift, obs.map_modes)
+            shifted = predicted + shift[..., None]
             var = obs.noise_var
             if self.discretisation_noise:
                 var = var + node_field_variance(shifted, obs.values)
-            ll = log_likelihood(shifted, obs.values, var, offset.var, obs.map_modes)
-        return ll, offset.updated(grid, xy, obs, predicted)
+            return log_likelihood(shifted, obs.values, var, bias_var, obs.map_modes)
+
+        return offset.marginal(given), offset.updated(grid, xy, obs, predicted)
 
     def _nodes_reference(self, grid: Grid, obs: Observation, state: PmfState) -> np.ndarray:
         """Through the prediction array: a common offset, or a map read other than bilinear."""

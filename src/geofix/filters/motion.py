@@ -48,7 +48,6 @@ import numpy as np
 from geofix.errors import ConfigError, MatchError
 from geofix.filters import _grid_ops as ops
 from geofix.filters.base import Motion, Observation
-from geofix.filters.hypothesis_offset import mixed_offsets, regridded_offsets
 from geofix.measurement import predict_measurements
 from geofix.nav.errstate import ErrorState, error_state, step_matrices, step_velocities
 from geofix.problem import MatchProblem
@@ -147,8 +146,7 @@ class RandomWalk:
         def mixed(offset):
             if offset is None:
                 return None
-            mean = mixed_offsets(state.log_weight, offset.mean, kernels)
-            return replace(offset, mean=mean).predicted(motion.dt)
+            return offset.mixed(state.log_weight, kernels).predicted(motion.dt)
 
         return replace(
             state,
@@ -180,8 +178,7 @@ class RandomWalk:
         def moved(offset):
             if offset is None:
                 return None
-            mean = regridded_offsets(offset.mean, state.frame, frame, log_weight.shape)
-            return replace(offset, mean=mean)
+            return offset.regridded(state.frame, frame, log_weight.shape)
 
         centre, axes, spacing = frame
         return replace(
@@ -314,9 +311,8 @@ class InsErrorState:
         def carried(offset):
             if offset is None:
                 return None
-            moved_offsets = regridded_offsets(offset.mean, state.frame, pulled, shape)
-            mixed = mixed_offsets(log_weight, moved_offsets, kernels)
-            return replace(offset, mean=mixed).predicted(motion.dt)
+            moved = offset.regridded(state.frame, pulled, shape)
+            return moved.mixed(log_weight, kernels).predicted(motion.dt)
 
         return replace(
             state,

@@ -387,7 +387,12 @@ class Mpf(ParticleSettings):
         if not np.isfinite(obs.values).any():
             return replace(state, log_weight=log_normalised(log_weight))
         if self.carries_offset and state.offset is None:
-            state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
+            state = replace(
+                state,
+                offset=HypothesisOffset.start(
+                    state.log_weight.shape, obs, self.offset_walk_factors
+                ),
+            )
         model = self.likelihood
 
         def likelihood(current: MpfState) -> np.ndarray:

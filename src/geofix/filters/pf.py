@@ -68,7 +68,7 @@ from geofix.filters._weights import (
     systematic_resample,
 )
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.hypothesis_offset import HypothesisOffset
+from geofix.filters.hypothesis_offset import HypothesisOffset, walk_factors
 from geofix.filters.likelihood import TerrainLikelihood, check_field_variance
 from geofix.filters.motion import ErrorStateTrack, check_motion_model, takes_error_state
 from geofix.filters.nuisance import check_map_model
@@ -194,6 +194,11 @@ class ParticleSettings(RecursiveFilter):
     map_model : str
         What the likelihood assumes of the prior map: ``imperfect`` (default),
         ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
+    fast_offset_walk : float
+        A second, faster walk rate of the per-hypothesis offset (pings of one or two
+        beams), as a factor on the declared walk, each hypothesis weighing both by its own
+        residuals (:func:`geofix.filters.hypothesis_offset.walk_factors`; 0: the declared
+        rate alone, the default).
     """
 
     name: ClassVar[str] = "particles"
@@ -211,8 +216,10 @@ class ParticleSettings(RecursiveFilter):
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
     map_model: str = "imperfect"
+    fast_offset_walk: float = 0.0
 
     def __post_init__(self) -> None:
+        walk_factors(self.fast_offset_walk)
         name = self.name
         if self.particles < 10 or self.max_particles < self.particles:
             raise ConfigError(
@@ -279,6 +286,11 @@ class ParticleSettings(RecursiveFilter):
         """
         wanted = area / (self.max_spacing_cells * cell) ** 2
         return int(np.clip(np.ceil(wanted), self.particles, self.max_particles))
+
+    @property
+    def offset_walk_factors(self) -> tuple[float, ...]:
+        """The walk rates its per-hypothesis offsets weigh, factors on the declared walk."""
+        return walk_factors(self.fast_offset_walk)
 
     @property
     def carries_offset(self) -> bool:
@@ -473,7 +485,12 @@ class Pf(ParticleSettings):
         if not np.isfinite(obs.values).any():
             return state
         if self.carries_offset and state.offset is None:
-            state = replace(state, offset=HypothesisOffset.start(state.log_weight.shape, obs))
+            state = replace(
+                state,
+                offset=HypothesisOffset.start(
+                    state.log_weight.shape, obs, self.offset_walk_factors
+                ),
+            )
         model = self.likelihood
 
         def likelihood(current: PfState) -> np.ndarray:

@@ -74,7 +74,7 @@ from geofix.filters import _grid_kernels as grid_kernels
 from geofix.filters import _grid_ops as ops
 from geofix.filters._grid_ops import REGRID_COPIES, check_regrid
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.hypothesis_offset import HypothesisOffset
+from geofix.filters.hypothesis_offset import HypothesisOffset, walk_factors
 from geofix.filters.likelihood import TerrainLikelihood, check_field_variance, node_field_variance
 from geofix.filters.motion import (
     ErrorStateTrack,
@@ -244,6 +244,11 @@ class Pmf(RecursiveFilter):
     map_model : str
         What the likelihood assumes of the prior map: ``imperfect`` (default),
         ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
+    fast_offset_walk : float
+        A second, faster walk rate of the per-hypothesis offset (pings of one or two
+        beams), as a factor on the declared walk, each hypothesis weighing both by its own
+        residuals (:func:`geofix.filters.hypothesis_offset.walk_factors`; 0: the declared
+        rate alone, the default).
 
     References
     ----------
@@ -281,8 +286,10 @@ class Pmf(RecursiveFilter):
     model: str = "auto"
     use_dvl: bool = True
     map_model: str = "imperfect"
+    fast_offset_walk: float = 0.0
 
     def __post_init__(self) -> None:
+        walk_factors(self.fast_offset_walk)
         check_motion_model("pmf", self.model)
         if self.points < 5 or self.points % 2 == 0:
             raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
@@ -392,7 +399,9 @@ class Pmf(RecursiveFilter):
         if not np.isfinite(obs.values).any():
             return state
         if self.carries_offset and state.offset is None:
-            state = replace(state, offset=HypothesisOffset.start(state.shape, obs))
+            state = replace(
+                state, offset=HypothesisOffset.start(state.shape, obs, self.offset_walk_factors)
+            )
         ll, offset = self.likelihood.nodes(grid, obs, state)
         return replace(
             state,
@@ -407,7 +416,9 @@ class Pmf(RecursiveFilter):
         offset = state.offset
         if np.isfinite(obs.values).any():
             if self.carries_offset and state.offset is None:
-                state = replace(state, offset=HypothesisOffset.start(state.shape, obs))
+                state = replace(
+                    state, offset=HypothesisOffset.start(state.shape, obs, self.offset_walk_factors)
+                )
             ll, offset = self.likelihood.nodes(grid, obs, state)
         evaluations = int(np.size(ll)) if np.ndim(ll) else 0
         count = len(state.field_offsets)
@@ -417,7 +428,7 @@ class Pmf(RecursiveFilter):
                 continue
             own = field_offsets[i]
             if own is None and self.carries_offset:
-                own = HypothesisOffset.start(state.shape, field_obs)
+                own = HypothesisOffset.start(state.shape, field_obs, self.offset_walk_factors)
             alone = replace(state, cell=field_grid.cell_size, offset=own)
             field_ll, field_offsets[i] = self.likelihood.nodes(field_grid, field_obs, alone)
             ll = ll + field_ll
@@ -431,6 +442,11 @@ class Pmf(RecursiveFilter):
             offset=offset,
             field_offsets=tuple(field_offsets),
         )
+
+    @property
+    def offset_walk_factors(self) -> tuple[float, ...]:
+        """The walk rates its per-hypothesis offsets weigh, factors on the declared walk."""
+        return walk_factors(self.fast_offset_walk)
 
     @property
     def carries_offset(self) -> bool:
