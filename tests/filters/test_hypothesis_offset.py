@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import small_mission_data
+from conftest import gravity_dvl_mission_data, small_mission_data
 from geofix.errors import ConfigError
 from geofix.filters.base import Observation
 from geofix.filters.hypothesis_offset import (
@@ -216,15 +216,9 @@ def _gravity_correlated_mission():
     from geofix.sim.scenario import scenario_from_dict
     from geofix.sim.simulate import prepare_map
 
-    data = {
-        "name": "gravity-correlated-map-error",
-        "map": {
-            "path": "builtin:alaska_gravity",
-            "kind": "gravity",
-            "region": [-138, -136, 53, 55],
-            "resample_m": 100,
-        },
-        "track": {
+    data = gravity_dvl_mission_data(
+        "gravity-correlated-map-error",
+        track={
             "start_cell": [250, 1120],
             "heading_deg": 70,
             "speed_m_s": 10,
@@ -233,19 +227,18 @@ def _gravity_correlated_mission():
             "legs": 1,
             "start_jitter_m": 50,
         },
-        "sensor": {"type": "gravimeter", "noise_std": 1.0},
-        "ins": {
+        ins={
             "mode": "dvl",
             "initial_error_m": [0, 0],
             "initial_error_std_m": 500,
             "heading_error_deg": 0.05,
             "gyro_bias_deg_h": 0.01,
         },
-        "dvl": {"noise_std_m_s": 0.01, "bias_m_s": 0.005, "scale_error": 0.002},
-        "seabed": {"error_rms": 2.0, "error_corr_m": 3000.0},
-        "trials": 12,
-        "seed": 11,
-    }
+        dvl={"noise_std_m_s": 0.01, "bias_m_s": 0.005, "scale_error": 0.002},
+        seabed={"error_rms": 2.0, "error_corr_m": 3000.0},
+        trials=12,
+        seed=11,
+    )
     scen = scenario_from_dict(data)
     return scen, prepare_map(scen)
 
