@@ -300,3 +300,33 @@ def test_every_recursive_filter_declares_what_the_navigator_reads():
     errstate = parse_method_spec("pmf:model=errstate,map_model=exact")
     assert errstate.needs_ins_model and errstate.map_model == "exact"
     assert not errstate.carries_offset
+
+
+def test_a_nis_window_loss_drops_only_the_fixes_made_while_it_filled(synthetic_grid):
+    """The fallback goes back to the last good fix before the window's first ping."""
+    from geofix.navigator.health import Health
+
+    health = Health(NavigatorSettings(nis_window=3), synthetic_grid)
+    health.restart(100.0)
+    nav = np.zeros(2)
+    for k, offset in enumerate(([1.0, 0.0], [2.0, 0.0], [3.0, 0.0], [4.0, 0.0])):
+        health.add_nis(1.0 + k)  # a ping's NIS, then its fix (the navigator's order)
+        health.remember_good(np.array(offset), np.eye(2), nav)
+    # the window holds the NIS of pings 2, 3 and 4: the fixes of pings 2 to 4 are suspect
+    health.forget_good_fix()
+    position, cov = health.fallback(nav)
+    assert position.tolist() == [1.0, 0.0] and cov.tolist() == np.eye(2).tolist()
+    # a second loss with no good fix since: the same fix again, not the INS alone
+    for _ in range(3):
+        health.add_nis(50.0)
+    health.forget_good_fix()
+    assert health.fallback(nav)[0].tolist() == [1.0, 0.0]
+    # no good fix before the window at all: the INS alone, at the init prior
+    health.restart(100.0)
+    health.add_nis(50.0)
+    health.remember_good(np.array([9.0, 9.0]), np.eye(2), nav)
+    for _ in range(2):
+        health.add_nis(50.0)
+    health.forget_good_fix()
+    position, cov = health.fallback(nav)
+    assert position.tolist() == [0.0, 0.0] and cov[0, 0] == pytest.approx(100.0**2)

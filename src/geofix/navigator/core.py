@@ -361,7 +361,7 @@ class Navigator:
                 accepted = False
                 self._rejected += 1
             if np.isfinite(nis) and s.nis_window > 0:
-                self._health.nis.append(nis)
+                self._health.add_nis(nis)
         # the ping judges the filter's claim when it came to a posterior already small
         # and resolved (the NIS against a wide or unresolved one is no test of the claim)
         judged = (

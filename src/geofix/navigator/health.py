@@ -198,6 +198,13 @@ class Health:
         self.good_offset = np.zeros(2)  # estimate minus navigation at the last good fix
         self.good_cov = np.zeros((2, 2))  # its covariance (the init prior before one)
         self.good_var = 0.0  # self.process_var at the last good fix
+        self.nis_count = 0  # NIS values taken into the window since the start
+        # the good fixes remembered while the latest NIS window filled and the last one
+        # before it: (nis_count when remembered, offset (2,) m, covariance (2, 2) m^2,
+        # process var m^2); at most a few windows' worth of pings without a NIS
+        self.good_fixes: deque[tuple[int, np.ndarray, np.ndarray, float]] = deque(
+            maxlen=4 * max(settings.nis_window, 1) + 1
+        )
 
     # ------------------------------------------------------------------ restarts
     def restart(self, sigma_m: float) -> None:
@@ -206,6 +213,7 @@ class Health:
         self.process_var = self.start_var = self.good_var = 0.0
         self.good_offset = np.zeros(2)
         self.good_cov = float(sigma_m) ** 2 * np.eye(2)
+        self.good_fixes.clear()
         self.lost = False
         self.grace = 0
         self.nis.clear()
@@ -221,6 +229,11 @@ class Health:
     def moved(self, process_var: float) -> None:
         """A motion added ``process_var`` (m^2 per axis) to the INS error."""
         self.process_var += float(process_var)
+
+    def add_nis(self, nis: float) -> None:
+        """A ping's NIS into the window of the NIS rule."""
+        self.nis.append(float(nis))
+        self.nis_count += 1
 
     def pinged(self) -> None:
         """One ping less of grace."""
@@ -423,11 +436,20 @@ class Health:
         return navigation + self.good_offset, self.good_cov + grown * np.eye(2)
 
     def forget_good_fix(self) -> None:
-        """The INS alone again: no offset, the init prior grown by every motion since.
+        """Drop the good fixes the window of inconsistent pings speaks against.
 
-        A window of inconsistent pings after a ``converged`` claim says the claim may have
-        been wrong; the INS fallback then carries no correction from it.
+        A window of inconsistent pings after a ``converged`` claim says the claims made
+        while it filled may have been wrong: the INS fallback goes back to the last good
+        fix remembered before the window's first ping, and to the INS alone (the init
+        prior grown by every motion since) when there is none.
         """
+        first = self.nis_count - len(self.nis)  # NIS values before the window's first
+        before = [fix for fix in self.good_fixes if fix[0] <= first]
+        self.good_fixes.clear()
+        if before:
+            _, self.good_offset, self.good_cov, self.good_var = before[-1]
+            self.good_fixes.append(before[-1])
+            return
         self.good_offset = np.zeros(2)
         self.good_cov = self.prior_sigma**2 * np.eye(2)
         self.good_var = 0.0
@@ -448,6 +470,11 @@ class Health:
         self.good_offset = position - navigation
         self.good_cov = np.array(cov, dtype=float)
         self.good_var = self.process_var
+        fix = (self.nis_count, self.good_offset, self.good_cov, self.good_var)
+        self.good_fixes.append(fix)
+        first = self.nis_count - self.settings.nis_window  # where a full window starts
+        while len(self.good_fixes) > 1 and self.good_fixes[1][0] <= first:
+            self.good_fixes.popleft()  # superseded by a later fix before the window
 
 
 __all__ = ["Health", "innovation_nis", "nis_limit", "normalised_move"]
