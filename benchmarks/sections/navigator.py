@@ -59,7 +59,10 @@ error; the model of the INS numbers the replay simulates, `geofix replay` builds
 them). The EKFs (`sitan`, `sitan-bank`) take the map as exact and report a small
 covariance before their linearisation has found the right basin: `sitan` settles (≈ 2-3 m
 at the end), while the NIS-window rule re-initialises the bank again and again (the
-re-inits column) and it ends hundreds of metres off. The test trusts a filter's own
+re-inits column); each loss drops only the fixes made while the window of inconsistent
+pings filled and restarts the bank around the last good fix before it, so the bank ends
+near the truth although its error runs to hundreds of metres between. The test trusts a
+filter's own
 covariance: it is a grid/particle-filter test, as it is in TRN.
 """
 
