@@ -35,7 +35,8 @@
 - **the INS fallback** (:meth:`Health.fallback`) -- the navigation plus the last good
   offset (estimate minus navigation at the last converged ping), with the last good
   covariance (the init prior before the first) grown by the process variance of every
-  motion since.
+  motion since. A loss by the NIS window drops the good fixes made while the window
+  filled (:meth:`Health.forget_good_fix`): the fallback goes back to the last one before.
 """
 
 from __future__ import annotations
