@@ -76,9 +76,9 @@ def build(quick: bool) -> str:
         base = scenario(name)
         parts.append(f"### `{name}`\n")
         table, bounds = [], []
+        methods = METHODS + EXTRA_METHODS.get(name, ())
         for label, seabed in rows.items():
             scen = _with_seabed(base, label, seabed)
-            methods = METHODS + EXTRA_METHODS.get(name, ())
             result = campaign(scen, list(methods), trials=trials, jobs=2)
             cell = float(base.map.resample_m) * (seabed or {}).get("cell_factor", 1)
             bound, aware = _bound_m(scen, trials)

@@ -56,10 +56,10 @@ def test_moments_add_the_spread_of_the_means_to_the_common_variance():
     started = HypothesisOffset.start((2, 2), _obs([1.0], 1.0, bias_var=9.0, walk=0.1))
     assert started.mean.shape == (2, 2) and started.variances.tolist() == [9.0]
     assert started.walks.tolist() == [0.1] and started.stationary == np.inf  # a random walk
-    two = HypothesisOffset.start(2, _obs([1.0], 1.0, 9.0, 0.1), walk_factors(10.0))
+    two = HypothesisOffset.start(2, _obs([1.0], 1.0, 9.0, 0.1), 10.0)
     np.testing.assert_allclose(two.walks, [0.1, 1.0])
     assert two.stationary == 9.0 and np.allclose(np.exp(two.log_prob), 0.5)
-    assert HypothesisOffset.start(2, _obs([1.0], 1.0, 9.0), walk_factors(10.0)).models == 1
+    assert HypothesisOffset.start(2, _obs([1.0], 1.0, 9.0), 10.0).models == 1
     for bad in (0.5, 1.0, -2.0, np.nan):
         with pytest.raises(ConfigError, match="fast_offset_walk"):
             walk_factors(bad)
@@ -139,7 +139,7 @@ def _rate_probabilities(offset_at, rng, pings: int = 150, dt: float = 20.0) -> n
     position = np.array([[300.0, 300.0]])
     mapped = float(grid.sample(position[:, 0], position[:, 1])[0])
     first = _obs([mapped], 1.0, bias_var=25.0, walk=1e-3)
-    offset = HypothesisOffset.start(1, first, walk_factors(10.0))
+    offset = HypothesisOffset.start(1, first, 10.0)
     for k in range(pings):
         offset = offset.predicted(dt)
         reading = mapped + offset_at(k) + rng.normal()

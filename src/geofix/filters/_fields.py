@@ -37,7 +37,7 @@ def started_offsets(filt, state, fields) -> tuple:
     for i, (field_obs, _) in enumerate(fields):
         if out[i] is None and filt.carries_offset and np.isfinite(field_obs.values).any():
             out[i] = HypothesisOffset.start(
-                state.log_weight.shape, field_obs, filt.offset_walk_factors
+                state.log_weight.shape, field_obs, filt.fast_offset_walk
             )
     return tuple(out)
 
@@ -77,7 +77,7 @@ def update_particle_fields(
     if primary and filt.carries_offset and state.offset is None:
         state = replace(
             state,
-            offset=HypothesisOffset.start(state.log_weight.shape, obs, filt.offset_walk_factors),
+            offset=HypothesisOffset.start(state.log_weight.shape, obs, filt.fast_offset_walk),
         )
     state = replace(state, field_offsets=started_offsets(filt, state, fields))
     model = filt.likelihood

@@ -117,7 +117,7 @@ class HypothesisOffset:
         )
 
     @classmethod
-    def start(cls, shape, obs: Observation, factors=(1.0,)) -> HypothesisOffset | None:
+    def start(cls, shape, obs: Observation, fast: float = 0.0) -> HypothesisOffset | None:
         """The prior ``N(0, obs.bias_var)`` for every hypothesis, or None without one.
 
         Parameters
@@ -127,9 +127,10 @@ class HypothesisOffset:
         obs : Observation
             The first ping: ``bias_var`` the offset's prior variance, ``bias_walk`` its
             growth per second; None unless ``bias_per_hypothesis`` and ``bias_var > 0``.
-        factors : sequence of float
-            The walk rates as factors on ``bias_walk`` (:func:`walk_factors`), equally
-            likely a priori; one rate where the walk is 0. With more than one, each rate
+        fast : float
+            A second, faster walk rate as a factor on ``bias_walk`` (the filter's
+            ``fast_offset_walk``; :func:`walk_factors`), the two equally likely a priori;
+            0, or a walk of 0: one rate. With two, each rate
             is a Gauss-Markov process whose stationary variance is ``bias_var``: a fast
             rate follows an error that comes and goes without carrying the offset far
             from the level the readings and the map share.
@@ -138,7 +139,7 @@ class HypothesisOffset:
             return None
         shape = (shape,) if np.ndim(shape) == 0 else tuple(shape)
         walk = float(obs.bias_walk)
-        factors = np.asarray(factors, dtype=float)
+        factors = np.asarray(walk_factors(fast), dtype=float)
         k = 1 if walk <= 0 else factors.size
         factors = factors[:k]
         log_prior = np.full((k, *([1] * len(shape))), -np.log(k))
@@ -288,16 +289,16 @@ class HypothesisOffset:
         rate's mean and probability where the mass arrives are moment-matched
         (:func:`mixed_offsets`).
         """
-        means = np.stack(
-            [
-                mixed_offsets(log_weight + lp, b, kernels)
-                for lp, b in zip(self.log_prob, self.means, strict=True)
-            ]
-        )
+        moved = [
+            _arrived(log_weight + lp, b, kernels)
+            for lp, b in zip(self.log_prob, self.means, strict=True)
+        ]
+        means = np.stack([mean for mean, _ in moved])
         if self.models == 1:
             return replace(self, means=means)
-        mass = np.exp(log_weight - np.max(log_weight))
-        arrived = np.stack([_convolved(mass * np.exp(lp), kernels) for lp in self.log_prob])
+        # each rate's arrived mass on the scale of the nodes' own peak mass
+        peak = np.max(log_weight)
+        arrived = np.stack([mass * np.exp(top - peak) for _, (mass, top) in moved])
         total = arrived.sum(axis=0)
         ok = total > 1e-300
         log_prob = np.where(
@@ -318,14 +319,6 @@ def _returned(log_prob: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
     """``(K, N)`` normalised rate probabilities with :data:`WALK_RETURN` of the prior back."""
     post = log_prob - logsumexp(log_prob, axis=0)
     return np.logaddexp(np.log1p(-WALK_RETURN) + post, np.log(WALK_RETURN) + log_prior)
-
-
-def _convolved(mass: np.ndarray, kernels) -> np.ndarray:
-    """``conv(mass)`` along each grid axis (the point-mass prediction's kernels)."""
-    p = mass
-    for axis, kernel in enumerate(kernels):
-        p = ndimage.convolve1d(p, kernel, axis=axis, mode="constant")
-    return p
 
 
 def mixed_offsets(log_weight: np.ndarray, mean: np.ndarray, kernels) -> np.ndarray:
@@ -350,13 +343,26 @@ def mixed_offsets(log_weight: np.ndarray, mean: np.ndarray, kernels) -> np.ndarr
     numpy.ndarray
         ``(N0, N1)`` offset means after it.
     """
-    p = np.exp(log_weight - log_weight.max())
+    return _arrived(log_weight, mean, kernels)[0]
+
+
+def _arrived(log_weight: np.ndarray, mean: np.ndarray, kernels):
+    """:func:`mixed_offsets` and the mass that arrives at each node.
+
+    Returns
+    -------
+    tuple
+        ``(means (N0, N1), (conv(p) (N0, N1), max of log_weight))``: the mass relative
+        to ``exp`` of the peak log-weight.
+    """
+    top = np.max(log_weight)
+    p = np.exp(log_weight - top)
     num, den = p * mean, p
     for axis, kernel in enumerate(kernels):
         num = ndimage.convolve1d(num, kernel, axis=axis, mode="constant")
         den = ndimage.convolve1d(den, kernel, axis=axis, mode="constant")
     arrived = den > 1e-300
-    return np.where(arrived, num / np.where(arrived, den, 1.0), mean)
+    return np.where(arrived, num / np.where(arrived, den, 1.0), mean), (den, top)
 
 
 def regridded_offsets(mean: np.ndarray, old, new, shape) -> np.ndarray:

@@ -389,9 +389,7 @@ class Mpf(ParticleSettings):
         if self.carries_offset and state.offset is None:
             state = replace(
                 state,
-                offset=HypothesisOffset.start(
-                    state.log_weight.shape, obs, self.offset_walk_factors
-                ),
+                offset=HypothesisOffset.start(state.log_weight.shape, obs, self.fast_offset_walk),
             )
         model = self.likelihood
 

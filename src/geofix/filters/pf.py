@@ -288,11 +288,6 @@ class ParticleSettings(RecursiveFilter):
         return int(np.clip(np.ceil(wanted), self.particles, self.max_particles))
 
     @property
-    def offset_walk_factors(self) -> tuple[float, ...]:
-        """The walk rates its per-hypothesis offsets weigh, factors on the declared walk."""
-        return walk_factors(self.fast_offset_walk)
-
-    @property
     def carries_offset(self) -> bool:
         """Each particle carries its own common offset (``map_model=imperfect``)."""
         return self.map_model == "imperfect"
@@ -487,9 +482,7 @@ class Pf(ParticleSettings):
         if self.carries_offset and state.offset is None:
             state = replace(
                 state,
-                offset=HypothesisOffset.start(
-                    state.log_weight.shape, obs, self.offset_walk_factors
-                ),
+                offset=HypothesisOffset.start(state.log_weight.shape, obs, self.fast_offset_walk),
             )
         model = self.likelihood
 

@@ -400,7 +400,7 @@ class Pmf(RecursiveFilter):
             return state
         if self.carries_offset and state.offset is None:
             state = replace(
-                state, offset=HypothesisOffset.start(state.shape, obs, self.offset_walk_factors)
+                state, offset=HypothesisOffset.start(state.shape, obs, self.fast_offset_walk)
             )
         ll, offset = self.likelihood.nodes(grid, obs, state)
         return replace(
@@ -417,7 +417,7 @@ class Pmf(RecursiveFilter):
         if np.isfinite(obs.values).any():
             if self.carries_offset and state.offset is None:
                 state = replace(
-                    state, offset=HypothesisOffset.start(state.shape, obs, self.offset_walk_factors)
+                    state, offset=HypothesisOffset.start(state.shape, obs, self.fast_offset_walk)
                 )
             ll, offset = self.likelihood.nodes(grid, obs, state)
         evaluations = int(np.size(ll)) if np.ndim(ll) else 0
@@ -428,7 +428,7 @@ class Pmf(RecursiveFilter):
                 continue
             own = field_offsets[i]
             if own is None and self.carries_offset:
-                own = HypothesisOffset.start(state.shape, field_obs, self.offset_walk_factors)
+                own = HypothesisOffset.start(state.shape, field_obs, self.fast_offset_walk)
             alone = replace(state, cell=field_grid.cell_size, offset=own)
             field_ll, field_offsets[i] = self.likelihood.nodes(field_grid, field_obs, alone)
             ll = ll + field_ll
@@ -442,11 +442,6 @@ class Pmf(RecursiveFilter):
             offset=offset,
             field_offsets=tuple(field_offsets),
         )
-
-    @property
-    def offset_walk_factors(self) -> tuple[float, ...]:
-        """The walk rates its per-hypothesis offsets weigh, factors on the declared walk."""
-        return walk_factors(self.fast_offset_walk)
 
     @property
     def carries_offset(self) -> bool:
