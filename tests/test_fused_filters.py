@@ -70,9 +70,9 @@ def scenario(kinds: tuple[str, ...], monkeypatch) -> object:
 
 PF_FUSED_GAP = pytest.mark.xfail(
     strict=True,
-    reason="the particle filter ends about 36 m off fused (the fused bound about 7 m, pmf 6 m): "
-    "its collapse on a sharp likelihood, as on the EX1811 replay (with fast_offset_walk=10, "
-    "33.8 and 8.9 m off: it passes)",
+    reason="the particle filter ends about 37 m off fused (the fused bound about 7 m, pmf 6 m), "
+    "not half of its 67 m on gravity alone: its collapse on a sharp likelihood, as on the "
+    "EX1811 replay",
 )
 
 

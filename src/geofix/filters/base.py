@@ -85,6 +85,10 @@ class Observation:
         The filter is to carry the offset per hypothesis from this ping on (``bias_var``
         its prior variance); False: ``bias_var`` is marginalised around the values as
         given.
+    bias_fast_walk : float
+        A second, faster walk rate the per-hypothesis offset weighs unless the filter's
+        ``fast_offset_walk`` says otherwise, as a factor on ``bias_walk`` (0: the declared
+        rate alone; :func:`geofix.filters.nuisance.default_fast_offset_walk`).
     map_modes : numpy.ndarray or None
         ``(b, k)`` shapes of the map's error across the ping's beams (a tilt and a
         curvature across a swath), each column a shape times its 1-sigma, map units: the
@@ -101,6 +105,7 @@ class Observation:
     bias_var: float = 0.0
     bias_walk: float = 0.0
     bias_per_hypothesis: bool = False
+    bias_fast_walk: float = 0.0
     map_modes: np.ndarray | None = None
 
 

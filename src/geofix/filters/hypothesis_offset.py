@@ -117,7 +117,7 @@ class HypothesisOffset:
         )
 
     @classmethod
-    def start(cls, shape, obs: Observation, fast: float = 0.0) -> HypothesisOffset | None:
+    def start(cls, shape, obs: Observation, fast: float | None = None) -> HypothesisOffset | None:
         """The prior ``N(0, obs.bias_var)`` for every hypothesis, or None without one.
 
         Parameters
@@ -127,10 +127,11 @@ class HypothesisOffset:
         obs : Observation
             The first ping: ``bias_var`` the offset's prior variance, ``bias_walk`` its
             growth per second; None unless ``bias_per_hypothesis`` and ``bias_var > 0``.
-        fast : float
+        fast : float, optional
             A second, faster walk rate as a factor on ``bias_walk`` (the filter's
             ``fast_offset_walk``; :func:`walk_factors`), the two equally likely a priori;
-            0, or a walk of 0: one rate. With two, each rate
+            0, or a walk of 0: one rate; None: the ping's ``bias_fast_walk`` (the map
+            kind's default). With two, each rate
             is a Gauss-Markov process whose stationary variance is ``bias_var``: a fast
             rate follows an error that comes and goes without carrying the offset far
             from the level the readings and the map share.
@@ -139,6 +140,7 @@ class HypothesisOffset:
             return None
         shape = (shape,) if np.ndim(shape) == 0 else tuple(shape)
         walk = float(obs.bias_walk)
+        fast = obs.bias_fast_walk if fast is None else fast
         factors = np.asarray(walk_factors(fast), dtype=float)
         k = 1 if walk <= 0 else factors.size
         factors = factors[:k]

@@ -47,6 +47,7 @@ from geofix.filters.nuisance import (
     ResidualScale,
     SwathModes,
     correlated_share,
+    default_fast_offset_walk,
     default_offset_std,
     read_at_points,
     representation_std,
@@ -469,6 +470,7 @@ class FilterStepper:
             bias_var=self._offset_prior_var,
             bias_walk=self.offset.walk,
             bias_per_hypothesis=True,
+            bias_fast_walk=default_fast_offset_walk(self.grid),
         )
 
     def _with_representation(self, obs: Observation) -> Observation:

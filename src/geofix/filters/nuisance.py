@@ -55,6 +55,9 @@ DEPTH_OFFSET_STD_M = 5.0
 DEPTH_OFFSET_SHARE = 0.002
 #: Default prior 1-sigma of the common offset for a gravity map, mGal.
 GRAVITY_OFFSET_STD_MGAL = 5.0
+#: The second, faster walk rate a gravity map's per-hypothesis offset weighs by default, as
+#: a factor on the declared walk (:func:`default_fast_offset_walk`).
+GRAVITY_FAST_OFFSET_WALK = 10.0
 
 
 MAP_MODELS = ("exact", "adaptive", "imperfect")
@@ -108,6 +111,32 @@ def default_offset_std(grid: Grid) -> float:
     finite = values[np.isfinite(values)]
     depth = float(np.median(np.abs(finite))) if finite.size else 0.0
     return DEPTH_OFFSET_STD_M + DEPTH_OFFSET_SHARE * depth
+
+
+def default_fast_offset_walk(grid: Grid) -> float:
+    """The faster offset walk a filter weighs when its settings leave it open.
+
+    A factor on the declared walk (:func:`geofix.filters.hypothesis_offset.walk_factors`)
+    for the per-hypothesis offset of pings of one or two beams.
+
+    Parameters
+    ----------
+    grid : Grid
+        The prior map: its kind.
+
+    Returns
+    -------
+    float
+        A gravity map: :data:`GRAVITY_FAST_OFFSET_WALK`. A gravity map's error is smooth
+        over kilometres (an altimetry grid's), so along a track it reads as an offset
+        moving faster than a gravimeter drifts, and the field is smooth enough that the
+        position is read from how the readings change rather than their level. A depth
+        map: 0 (the declared rate alone). Its error at a track is mostly relief below
+        its cells (:class:`ProfileRoughness`), which a faster offset would absorb with the
+        relief that tells positions apart. A magnetic map: 0, not yet measured on an
+        imperfect magnetic map.
+    """
+    return GRAVITY_FAST_OFFSET_WALK if grid.kind == "gravity" else 0.0
 
 
 def unscented_points(mean, cov) -> tuple[np.ndarray, np.ndarray]:
@@ -970,6 +999,7 @@ def correlated_share(offsets, cell: float, step_m: float | None = None) -> float
 
 
 __all__ = [
+    "GRAVITY_FAST_OFFSET_WALK",
     "MAP_MODELS",
     "CommonOffset",
     "PointReads",
@@ -979,6 +1009,7 @@ __all__ = [
     "SwathModes",
     "check_map_model",
     "correlated_share",
+    "default_fast_offset_walk",
     "default_offset_std",
     "read_at_points",
     "representation_std",

@@ -194,11 +194,13 @@ class ParticleSettings(RecursiveFilter):
     map_model : str
         What the likelihood assumes of the prior map: ``imperfect`` (default),
         ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
-    fast_offset_walk : float
+    fast_offset_walk : float or None
         A second, faster walk rate of the per-hypothesis offset (pings of one or two
         beams), as a factor on the declared walk, each hypothesis weighing both by its own
         residuals (:func:`geofix.filters.hypothesis_offset.walk_factors`; 0: the declared
-        rate alone, the default).
+        rate alone). None (the default): the map kind's
+        (:func:`geofix.filters.nuisance.default_fast_offset_walk`: 10 on a gravity map, 0
+        on a depth or magnetic map).
     """
 
     name: ClassVar[str] = "particles"
@@ -216,10 +218,11 @@ class ParticleSettings(RecursiveFilter):
     ambiguity_radius_cells: float = 3.0
     ambiguity_mass: float = 0.05
     map_model: str = "imperfect"
-    fast_offset_walk: float = 0.0
+    fast_offset_walk: float | None = None
 
     def __post_init__(self) -> None:
-        walk_factors(self.fast_offset_walk)
+        if self.fast_offset_walk is not None:
+            walk_factors(self.fast_offset_walk)
         name = self.name
         if self.particles < 10 or self.max_particles < self.particles:
             raise ConfigError(

@@ -244,11 +244,13 @@ class Pmf(RecursiveFilter):
     map_model : str
         What the likelihood assumes of the prior map: ``imperfect`` (default),
         ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
-    fast_offset_walk : float
+    fast_offset_walk : float or None
         A second, faster walk rate of the per-hypothesis offset (pings of one or two
         beams), as a factor on the declared walk, each hypothesis weighing both by its own
         residuals (:func:`geofix.filters.hypothesis_offset.walk_factors`; 0: the declared
-        rate alone, the default).
+        rate alone). None (the default): the map kind's
+        (:func:`geofix.filters.nuisance.default_fast_offset_walk`: 10 on a gravity map, 0
+        on a depth or magnetic map).
 
     References
     ----------
@@ -286,10 +288,11 @@ class Pmf(RecursiveFilter):
     model: str = "auto"
     use_dvl: bool = True
     map_model: str = "imperfect"
-    fast_offset_walk: float = 0.0
+    fast_offset_walk: float | None = None
 
     def __post_init__(self) -> None:
-        walk_factors(self.fast_offset_walk)
+        if self.fast_offset_walk is not None:
+            walk_factors(self.fast_offset_walk)
         check_motion_model("pmf", self.model)
         if self.points < 5 or self.points % 2 == 0:
             raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
