@@ -38,6 +38,10 @@ ROWS = {
         "+3 m vertical offset": {"offset": 3.0},
         "correlated error, 2 m rms over 300 m": {"error_rms": 2.0, "error_corr_m": 300.0},
         "20 m misregistration": {"misregistration_m": 20.0},
+        "20 m misregistration, the map states 20 m": {
+            "misregistration_m": 20.0,
+            "registration_std_m": 20.0,
+        },
         "mix: 50 m cells, 10 m shift, 1 m offset, 1 m correlated": {
             "cell_factor": 5,
             "misregistration_m": 10.0,
@@ -269,7 +273,10 @@ def _intro(trials: int) -> str:
         "is not counted: a smooth error is taken as white per beam, so on the correlated "
         "rows the bound is neither a floor nor a ceiling), the common offset known (the "
         "bound does not charge it, so it holds for a filter that learns it); a "
-        "misregistration is a bias no estimator sees and is not in it. The *offset-aware* "
+        "misregistration is a bias no estimator sees and is not in it. A map that states how "
+        "well it is registered (`registration_std_m`, `Grid.registration_var`) has every "
+        "method add that variance to the covariance it reports (the estimate unchanged); "
+        "the row whose map states its 20 m shows it. The *offset-aware* "
         "bound is the same problem with the offset a random-walk state as the default "
         "filters model it (`geofix.evaluate.crlb.offset_state_crlb`: prior 1-sigma 5 m + "
         "0.2 % of depth or 5 mGal, walk 1e-3 units^2/s): the limit of the problem those "

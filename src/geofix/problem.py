@@ -230,6 +230,31 @@ class MatchProblem:
         return footprint_xy(track, psi, self.offsets)
 
 
+def registered_covariance(grid: Grid, covariance):
+    """A position covariance matched on ``grid`` plus the map's stated registration.
+
+    Parameters
+    ----------
+    grid : Grid
+        The prior map (its :attr:`~geofix.maps.grid.Grid.registration_var`; for a fused
+        problem the primary field's map).
+    covariance : numpy.ndarray or None
+        ``(..., 2, 2)`` covariances in the map's frame, m^2.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        ``covariance + registration_var * I`` (the same array when the map states no
+        registration; None for None).
+    """
+    if covariance is None:
+        return None
+    var = grid.registration_var
+    if var == 0.0:
+        return covariance
+    return np.asarray(covariance, dtype=float) + var * np.eye(2)
+
+
 def check_beam_noise_std(beam_noise_std, beams: int, who: str) -> None:
     """Raise unless ``beam_noise_std`` is ``(beams,)`` finite values >= 0 (map units).
 

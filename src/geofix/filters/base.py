@@ -26,7 +26,7 @@ from geofix.filters.loop import FilterSettings, FilterStepper
 from geofix.filters.state import state_mode
 from geofix.maps.grid import Grid
 from geofix.measurement import lag_compensated
-from geofix.problem import Fix, MatchProblem
+from geofix.problem import Fix, MatchProblem, registered_covariance
 
 
 @dataclass(frozen=True)
@@ -225,7 +225,9 @@ def run_filter(filt, problem: MatchProblem, rng: np.random.Generator) -> Fix:
     -------
     Fix
         ``track`` the estimate at every sample; ``covariance`` the last one;
-        ``diagnostics["covariances"]`` ``(n, 2, 2)``; ``ambiguous`` from the final state.
+        ``diagnostics["covariances"]`` ``(n, 2, 2)``, each with the map's stated
+        registration (:func:`geofix.problem.registered_covariance`); ``ambiguous`` from
+        the final state.
     """
     grid: Grid = problem.grid
     obs = observations(problem)
@@ -238,6 +240,7 @@ def run_filter(filt, problem: MatchProblem, rng: np.random.Generator) -> Fix:
             stepper.predict(steps[k - 1])
         means[k], covs[k] = stepper.update(obs[k], float(problem.times[k]))
     state = stepper.state
+    covs = registered_covariance(grid, covs)
     return Fix(
         track=means,
         covariance=covs[-1],

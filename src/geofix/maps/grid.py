@@ -34,7 +34,9 @@ class Grid:
     name : str
         Short name for tables and figures.
     meta : dict
-        Free-form provenance (source file, projection, region), never used by numerics.
+        Free-form provenance (source file, projection, region), never used by numerics
+        save ``registration_std_m``: how well the map states it is registered, metres
+        (:attr:`registration_var`).
     interpolation : {"bilinear", "bicubic"}
         The read the map's users take by default (:meth:`sample` and
         :meth:`sample_gradient` without a method, the measurement model of
@@ -81,6 +83,25 @@ class Grid:
     def cell_size(self) -> float:
         """Mean cell size, metres (the ``C`` of the sources)."""
         return 0.5 * (self.dx + self.dy)
+
+    @property
+    def registration_var(self) -> float:
+        """Variance of the map's stated registration error along each axis, m^2.
+
+        ``meta["registration_std_m"]`` squared; 0 when the map states none. A
+        misregistration moves every feature of the map alike, so no reading can show it:
+        a position matched on the map is uncertain by it besides its own covariance.
+        """
+        std = self.meta.get("registration_std_m")
+        if std is None:
+            return 0.0
+        try:
+            value = float(std)
+        except (TypeError, ValueError):
+            value = float("nan")
+        if not (np.isfinite(value) and value >= 0):
+            raise MapError(f"map {self.name!r}: registration_std_m must be >= 0, got {std!r}")
+        return value * value
 
     @property
     def x(self) -> np.ndarray:

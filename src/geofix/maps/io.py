@@ -336,13 +336,49 @@ def _read_netcdf(path: Path, variable: str | None, source: str, precision=(None,
         y = _numbers(da[yname], f"coordinate {yname!r}", source)
         xa, ya = dict(da[xname].attrs), dict(da[yname].attrs)
         attrs = dict(da.attrs)
+        extra = stated_registration({**ds.attrs, **attrs}, source)
         geographic = _is_geographic(str(xname), str(yname), xa, ya, x, y)
         x, y, flips = _ascending_axes(x, y, source)
         within = _storage_within(precision, geographic)
         values = _numbers(da, f"variable {var!r}", source, flips, within)
     text = " ".join([var, str(attrs.get("long_name", "")), str(attrs.get("standard_name", ""))])
     units = attrs.get("units") or None
-    return _Raw(values, x, y, geographic, "netcdf", var, units, f"{text} {units or ''}")
+    return _Raw(
+        values, x, y, geographic, "netcdf", var, units, f"{text} {units or ''}", extra=extra
+    )
+
+
+def stated_registration(attrs: dict, source: str) -> dict:
+    """``{"registration_std_m": value}`` when a map file states its registration.
+
+    Parameters
+    ----------
+    attrs : dict
+        The file's and the variable's attributes (the variable's win).
+    source : str
+        For messages.
+
+    Returns
+    -------
+    dict
+        Empty when no attribute ``registration_std_m`` is given; its value, metres, for
+        :attr:`geofix.maps.grid.Grid.registration_var`.
+
+    Raises
+    ------
+    MapError
+        The attribute is not a finite number at least 0.
+    """
+    if "registration_std_m" not in attrs:
+        return {}
+    raw = attrs["registration_std_m"]
+    try:
+        value = float(np.asarray(raw).reshape(-1)[0])
+    except (TypeError, ValueError, IndexError):
+        value = float("nan")
+    if not (np.isfinite(value) and value >= 0):
+        raise MapError(f"{source}: attribute registration_std_m must be a number >= 0, got {raw!r}")
+    return {"registration_std_m": value}
 
 
 def _pick_variable(ds, variable: str | None, source: str) -> str:

@@ -56,7 +56,7 @@ import numpy as np
 from geofix.errors import ConfigError, MatchError
 from geofix.match._hausdorff import batch_mean_hausdorff
 from geofix.measurement import predict_track
-from geofix.problem import Fix, MatchProblem
+from geofix.problem import Fix, MatchProblem, registered_covariance
 from geofix.sensors.gravimeter import compensate_first_order_lag
 
 
@@ -211,7 +211,7 @@ class AbcMhd:
         tail = slice(max(problem.n - 2 * h - 2, 0), problem.n)
         resid = track[tail] - problem.indicated[tail]
         covariance = np.atleast_2d(np.cov(resid.T)) if resid.shape[0] > 2 else np.zeros((2, 2))
-        covariance = covariance + np.eye(2) * cell**2 / 12.0
+        covariance = registered_covariance(problem.grid, covariance + np.eye(2) * cell**2 / 12.0)
         return Fix(
             track=track,
             covariance=covariance,

@@ -68,7 +68,7 @@ import numpy as np
 from geofix.errors import MatchError
 from geofix.measurement import beam_gradients, sample_information
 from geofix.nav.errstate import InsErrorModel, error_state, step_velocities
-from geofix.problem import MatchProblem
+from geofix.problem import MatchProblem, registered_covariance
 
 
 def information_weights(
@@ -245,6 +245,8 @@ def with_leg_drift(
 ) -> tuple[np.ndarray | None, np.ndarray]:
     """A rigid-offset fix's own covariance plus the drift inside its window.
 
+    And plus the map's stated registration (:func:`geofix.problem.registered_covariance`).
+
     Parameters
     ----------
     problem : MatchProblem
@@ -259,8 +261,8 @@ def with_leg_drift(
     Returns
     -------
     tuple
-        ``(covariance + drift, drift)``, m^2 (``(None, drift)`` without a covariance:
-        the sensor part is unknown, so the sum would claim too much).
+        ``(covariance + drift + registration, drift)``, m^2 (``(None, drift)`` without a
+        covariance: the sensor part is unknown, so the sum would claim too much).
     """
     try:
         drift = leg_drift_covariance(problem, track, heading, beams)
@@ -273,4 +275,4 @@ def with_leg_drift(
         )
     if covariance is None:
         return None, drift
-    return np.asarray(covariance, dtype=float) + drift, drift
+    return registered_covariance(problem.grid, np.asarray(covariance, dtype=float) + drift), drift

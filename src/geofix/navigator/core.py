@@ -84,7 +84,7 @@ from geofix.navigator.intake import (
 )
 from geofix.navigator.offset import OffsetEstimator
 from geofix.navigator.settings import NavigatorSettings
-from geofix.problem import Matcher, MatchField, MatchProblem
+from geofix.problem import Matcher, MatchField, MatchProblem, registered_covariance
 
 FIELD_SENSORS = {"depth": "singlebeam", "gravity": "gravimeter", "magnetic": "magnetometer"}
 """The sensor type of a further field of each map kind (its placeholder start reading)."""
@@ -734,7 +734,7 @@ class Navigator:
         return Estimate(
             t=float(t),
             position=mean,
-            covariance=cov,
+            covariance=registered_covariance(self.grid, cov),
             mle=mle,
             status=status,
             nis=nis,

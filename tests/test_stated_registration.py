@@ -1,0 +1,76 @@
+"""A map that states how well it is registered: its variance in every reported covariance."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from conftest import northward_trial
+from geofix import Navigator
+from geofix.errors import MapError
+from geofix.maps import Grid, load_grid
+from geofix.methods import parse_method_spec
+from geofix.problem import registered_covariance
+
+STATED_M = 20.0
+
+
+def _stated(grid: Grid, std=STATED_M) -> Grid:
+    return dataclasses.replace(grid, meta={**grid.meta, "registration_std_m": std})
+
+
+def test_the_stated_registration_is_a_variance_per_axis():
+    grid = Grid(np.zeros((3, 3)), 0.0, 0.0, 10.0, 10.0)
+    assert grid.registration_var == 0.0
+    assert _stated(grid).registration_var == STATED_M**2
+    cov = np.stack([np.eye(2), 4.0 * np.eye(2)])
+    np.testing.assert_allclose(registered_covariance(_stated(grid), cov)[1], 404.0 * np.eye(2))
+    assert registered_covariance(grid, cov) is cov
+    assert registered_covariance(_stated(grid), None) is None
+    for bad in (-1.0, float("nan"), "far"):
+        with pytest.raises(MapError, match="registration_std_m"):
+            _ = _stated(grid, bad).registration_var
+
+
+def test_a_map_file_states_its_registration_in_an_attribute(tmp_path):
+    y, x = np.arange(5) * 100.0, np.arange(6) * 100.0
+    z = xr.DataArray(np.add.outer(y, x) * 0.01 - 1000.0, coords={"y": y, "x": x}, dims=("y", "x"))
+    path = tmp_path / "stated.nc"
+    xr.Dataset({"z": z}, attrs={"registration_std_m": 35.0}).to_netcdf(path)
+    assert load_grid(path).registration_var == 35.0**2
+    xr.Dataset({"z": z}).to_netcdf(path)
+    assert load_grid(path).registration_var == 0.0
+    xr.Dataset({"z": z}, attrs={"registration_std_m": -5.0}).to_netcdf(path)
+    with pytest.raises(MapError, match="registration_std_m must be a number >= 0"):
+        load_grid(path)
+
+
+@pytest.mark.parametrize("spec", ["pmf", "pf", "tercom"])
+def test_a_method_reports_its_fix_with_the_stated_registration(spec, synthetic_grid):
+    """The estimate is the same; only the reported covariance grows by the stated variance."""
+    trial = northward_trial(synthetic_grid, 40, 60.0, (40.0, -30.0), 0.5, np.random.default_rng(3))
+    method = parse_method_spec(spec)
+    plain = method.match(trial.problem(synthetic_grid), np.random.default_rng(5))
+    stated = method.match(trial.problem(_stated(synthetic_grid)), np.random.default_rng(5))
+    np.testing.assert_array_equal(stated.track, plain.track)
+    np.testing.assert_allclose(stated.covariance, plain.covariance + STATED_M**2 * np.eye(2))
+
+
+def test_the_navigator_reports_the_stated_registration(synthetic_grid):
+    trial = northward_trial(synthetic_grid, 20, 60.0, (40.0, -30.0), 0.5, np.random.default_rng(3))
+    reports = []
+    for grid in (synthetic_grid, _stated(synthetic_grid)):
+        nav = Navigator(grid, "pmf", {"noise_std": 0.5}, seed=1)
+        nav.init(trial.times[0], trial.indicated[0], 60.0, 0.0)
+        for k in range(trial.times.size):
+            if k:
+                nav.motion(trial.times[k], trial.indicated[k], 0.0)
+            last = nav.measure(trial.times[k], np.array([[0.0, 0.0, trial.measured[k, 0]]]))
+        reports.append(last)
+    plain, stated = reports
+    np.testing.assert_array_equal(stated.position, plain.position)
+    assert stated.status == plain.status
+    np.testing.assert_allclose(stated.covariance, plain.covariance + STATED_M**2 * np.eye(2))
