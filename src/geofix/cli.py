@@ -455,13 +455,26 @@ def grid_command(
     max_gap_cells: Annotated[
         float, typer.Option(help="Fill empty cells at most this many cells from data.")
     ] = 2.0,
+    registration_std: Annotated[
+        float | None,
+        typer.Option(
+            help="How well the soundings' positions register the map, metres (1-sigma per "
+            "axis): kept as the map's registration_std_m, added to every reported covariance."
+        ),
+    ] = None,
 ) -> None:
     """Grid soundings to a netCDF map with an uncertainty layer (per-cell std and count)."""
 
     def go():
         from geofix.logs.gridmap import grid_log
 
-        gridded, path = grid_log(soundings, cell_m, out, max_gap_cells=max_gap_cells)
+        gridded, path = grid_log(
+            soundings,
+            cell_m,
+            out,
+            max_gap_cells=max_gap_cells,
+            registration_std_m=registration_std,
+        )
         filled = float((~np.isnan(gridded.grid.values)).mean())
         _say(f"{gridded.grid!r}: {filled:.0%} of cells with data; map: {path}")
 

@@ -35,3 +35,14 @@ def test_grid_bad_cell_is_one_line_exit_2(tmp_path):
     assert result.exit_code == 2
     assert "cell size must be positive" in result.output
     assert "Traceback" not in result.output
+
+
+def test_grid_states_the_registration_it_is_told(tmp_path):
+    out = tmp_path / "stated.nc"
+    args = ["grid", "builtin:ex1811", "--cell-m", "200", "--out", str(out)]
+    result = runner.invoke(app, [*args, "--registration-std", "15"])
+    assert result.exit_code == 0, result.output
+    assert load_grid(out).registration_var == 225.0
+    result = runner.invoke(app, [*args, "--registration-std", "-1"])
+    assert result.exit_code == 2
+    assert "registration_std_m must be a number >= 0" in result.output

@@ -8,6 +8,7 @@ import numpy as np
 
 from geofix.errors import ConfigError, MapError
 from geofix.maps.gridding import GriddedMap, grid_soundings, save_gridded
+from geofix.maps.io import stated_registration
 
 
 def _read_soundings(path: str | Path) -> tuple[np.ndarray, str | None, str]:
@@ -60,7 +61,11 @@ def _table_soundings(path: Path) -> tuple[np.ndarray, str | None, str]:
 
 
 def grid_log(
-    path: str | Path, cell_m: float, out: str | Path, max_gap_cells: float = 2.0
+    path: str | Path,
+    cell_m: float,
+    out: str | Path,
+    max_gap_cells: float = 2.0,
+    registration_std_m: float | None = None,
 ) -> tuple[GriddedMap, Path]:
     """Grid the soundings of ``path`` to ``cell_m`` cells and write ``out`` (netCDF).
 
@@ -81,6 +86,10 @@ def grid_log(
         The netCDF file to write; its folder is created.
     max_gap_cells : float
         Cells farther than this (in cells) from any cell with soundings stay NaN.
+    registration_std_m : float, optional
+        How well the soundings' positions register the map, metres (1-sigma per axis),
+        kept in its ``meta`` (:attr:`geofix.maps.grid.Grid.registration_var`); None:
+        not stated.
 
     Returns
     -------
@@ -100,6 +109,8 @@ def grid_log(
     except OSError as exc:
         raise ConfigError(f"cannot create the folder of {out}: {exc}") from None
     meta = {"source": Path(str(path)).name, "projection": frame, "format": "soundings"}
+    if registration_std_m is not None:
+        meta.update(stated_registration({"registration_std_m": registration_std_m}, "grid"))
     try:
         gridded = grid_soundings(
             pts[:, 0], pts[:, 1], pts[:, 2], cell_m, max_gap_cells, name=name, meta=meta

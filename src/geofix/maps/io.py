@@ -377,7 +377,7 @@ def stated_registration(attrs: dict, source: str) -> dict:
     except (TypeError, ValueError, IndexError):
         value = float("nan")
     if not (np.isfinite(value) and value >= 0):
-        raise MapError(f"{source}: attribute registration_std_m must be a number >= 0, got {raw!r}")
+        raise MapError(f"{source}: registration_std_m must be a number >= 0, got {raw!r}")
     return {"registration_std_m": value}
 
 
