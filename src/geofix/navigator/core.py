@@ -242,6 +242,7 @@ class Navigator:
         self._t_accepted = 0.0
         self._pings = self._rejected = self._reinits = self._accepted_count = 0
         self._last: Estimate | None = None
+        self._map_cov = np.zeros((2, 2))  # the last posterior's, without the registration
 
     # ------------------------------------------------------------------ the filter
     @property
@@ -391,7 +392,7 @@ class Navigator:
         self._offset.judged(estimate.status)
         if accepted and s.report_status:
             offset = estimate.position - pose[1]
-            entry = (nis, beams, offset, estimate.covariance, self._health.process_var, judged)
+            entry = (nis, beams, offset, self._map_cov, self._health.process_var, judged)
             self._health.window.append(entry)
         self._health.pinged()
         reason = self._health.lost_reason(t, self._t_accepted, self._covariance)
@@ -400,7 +401,7 @@ class Navigator:
                 self._health.forget_good_fix()
             estimate = self._lose(estimate, t)  # a ping that loses the filter is no good fix
         elif estimate.status == "converged":
-            self._health.remember_good(estimate.position, estimate.covariance, pose[1])
+            self._health.remember_good(estimate.position, self._map_cov, pose[1])
         elif self._health.lost:
             estimate = self._fallback(estimate)
         self._last = estimate
@@ -716,6 +717,7 @@ class Navigator:
     ) -> Estimate:
         """The estimate of the current state: status, MLE and KL as the settings ask."""
         mean, cov = self._stepper.estimate()
+        self._map_cov = cov  # the health rules work in the map's frame
         report = self.settings.report_status
         mle = mode_position(self.filter, self.state) if report else mean.copy()
         status = "initialising" if self._accepted_count == 0 else "converging"
@@ -753,6 +755,8 @@ class Navigator:
     def _fallback(self, estimate: Estimate) -> Estimate:
         """``estimate`` with the INS fallback's position and covariance, status ``lost``."""
         position, cov = self.fallback()
+        if self._health.good_fixes:  # from a fix on the map: its registration too
+            cov = registered_covariance(self.grid, cov)
         return Estimate(
             **{
                 **estimate_fields(estimate),
