@@ -73,3 +73,27 @@ def test_the_navigator_reports_the_stated_registration(synthetic_grid):
         assert stated.status == plain.status
         np.testing.assert_array_equal(stated.position, plain.position)
         np.testing.assert_allclose(stated.covariance, plain.covariance + STATED_M**2 * np.eye(2))
+
+
+def test_a_replay_states_the_registration_it_is_told(small_mission, tmp_path):
+    from typer.testing import CliRunner
+
+    from geofix.cli import app
+    from geofix.replay import replay_log
+    from geofix.sim.export import export_trials
+
+    sensor = {"type": "multibeam", "beams": 7, "swath_width_m": 3000.0, "noise_std": 2.0}
+    path = export_trials(small_mission("stated-replay", sensor=sensor, trials=1), tmp_path / "e.nc")
+    plain = replay_log(path, None, ["pmf"])[0].estimates["pmf"]
+    stated = replay_log(path, None, ["pmf"], registration_std_m=STATED_M)[0].estimates["pmf"]
+    for a, b in zip(plain, stated, strict=True):
+        assert a.status == b.status
+        np.testing.assert_allclose(b.covariance, a.covariance + STATED_M**2 * np.eye(2))
+    runner = CliRunner()
+    for args in (
+        ["replay", str(path), "--method", "pmf", "--registration-std", "-3"],
+        ["serve", "--map", "builtin:mb_1km", "--port", "0", "--registration-std", "-3"],
+    ):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, result.output
+        assert "registration_std_m must be >= 0" in result.output

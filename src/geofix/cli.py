@@ -483,6 +483,16 @@ def grid_command(
     _guarded(go)
 
 
+#: ``--registration-std`` of replay and serve: how well the primary map is registered.
+RegistrationStd = Annotated[
+    float | None,
+    typer.Option(
+        help="How well the map is registered, metres (1-sigma per axis): added to every "
+        "reported covariance (over the map file's registration_std_m)."
+    ),
+]
+
+
 @app.command("replay")
 def replay_command(
     log: Annotated[
@@ -538,6 +548,7 @@ def replay_command(
     hours: Annotated[
         float | None, typer.Option(help="Replay this many hours (default: to the end).")
     ] = None,
+    registration_std: RegistrationStd = None,
 ) -> None:
     """Replay a logged mission ping by ping through the online navigator."""
 
@@ -565,6 +576,7 @@ def replay_command(
             start_h=start_h,
             hours=hours,
             field_noise_std=dict(zip((field or [])[1:], stds[1:], strict=False)),
+            registration_std_m=registration_std,
         )
         if json_output:
             sys.stdout.write(json.dumps(result.summary) + "\n")
@@ -651,6 +663,7 @@ def serve_command(
     update_timeout_s: Annotated[
         float | None, typer.Option(help="Time budget of one update, seconds (default 60).")
     ] = None,
+    registration_std: RegistrationStd = None,
 ) -> None:
     """Serve the navigator over TCP: newline-delimited JSON, one navigator per connection."""
     given = {
@@ -680,6 +693,8 @@ def serve_command(
         check_online_method(method, "serve")
         primary, *further = map_path
         grid = load_grid(primary, variable=variable, resample_m=resample_m)
+        if registration_std is not None:
+            grid = grid.with_registration(registration_std)
         error = None if primary.startswith("builtin:") else load_map_error(primary)
         field_grids = load_field_maps(further, grid)
         settings = {}

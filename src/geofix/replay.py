@@ -1013,6 +1013,7 @@ def replay_log(
     start_h: float | None = None,
     hours: float | None = None,
     field_noise_std=None,
+    registration_std_m: float | None = None,
 ) -> tuple[ReplayResult, dict]:
     """``geofix replay``: read the log and the map, replay, write the outputs.
 
@@ -1043,6 +1044,10 @@ def replay_log(
     field_noise_std : dict, optional
         Kind -> measurement noise 1-sigma of each further field, its map's units
         (default :data:`DEFAULT_FIELD_NOISE_STD`).
+    registration_std_m : float, optional
+        How well the primary map is registered, metres (1-sigma per axis;
+        ``--registration-std``), over what the map file states
+        (:meth:`geofix.maps.grid.Grid.with_registration`).
 
     Returns
     -------
@@ -1106,6 +1111,8 @@ def replay_log(
                 "grid it with geofix grid or load a lon/lat map"
             )
     mission = window_mission(mission, start_h, hours)
+    if registration_std_m is not None:
+        grid = grid.with_registration(registration_std_m)
     result = replay(
         mission,
         grid,

@@ -103,6 +103,18 @@ class Grid:
             raise MapError(f"map {self.name!r}: registration_std_m must be >= 0, got {std!r}")
         return value * value
 
+    def with_registration(self, std_m: float) -> Grid:
+        """The map stating that it is registered to ``std_m`` metres (1-sigma per axis).
+
+        Raises
+        ------
+        MapError
+            ``std_m`` is not a number at least 0.
+        """
+        stated = replace(self, meta={**self.meta, "registration_std_m": std_m})
+        _ = stated.registration_var  # refuses a value that is not a number >= 0
+        return stated
+
     @property
     def x(self) -> np.ndarray:
         """Cell-centre eastings, metres, shape ``(nx,)``."""
