@@ -220,6 +220,27 @@ def test_offset_tide_and_drift_appear_exactly_in_noise_free_readings():
     assert not np.allclose(other.measured - plain_other.measured, expected[:, None])
 
 
+def test_an_offset_drawn_per_trial_has_its_spread_and_leaves_the_rest_as_it_was():
+    grid = wavy_grid()
+    sensor = {"type": "gravimeter", "noise_std": 0.0}
+    plain = scenario({"tide_amplitude": 1.0}, sensor=sensor)
+    drawn = scenario({"tide_amplitude": 1.0, "offset_std": 4.0}, sensor=sensor)
+    offsets = []
+    for index in range(40):
+        a = simulate_trial(plain, grid, index)
+        b = simulate_trial(drawn, grid, index)
+        step = (b.measured - a.measured)[:, 0]
+        np.testing.assert_allclose(step, step[0], atol=1e-12)  # one offset, the tide as it was
+        readings = seabed_streams(np.random.default_rng([5, index]).spawn(5)[4]).readings
+        readings.uniform(0.0, 2.0 * np.pi)  # the tide's phase first
+        assert step[0] == pytest.approx(readings.normal(0.0, 4.0), abs=1e-12)
+        offsets.append(step[0])
+    # 40 draws of N(0, 16): the sample sd within about 3 of its standard errors (4 / sqrt(80))
+    assert abs(np.std(offsets) - 4.0) < 3 * 4.0 / np.sqrt(80)
+    with pytest.raises(ConfigError, match="offset_std"):
+        scenario({"offset_std": -1.0})
+
+
 # ----------------------------------------------------------------------------- misregistration
 def test_a_fixed_misregistration_moves_a_ramp_by_the_stated_vector():
     grid = ramp_grid()

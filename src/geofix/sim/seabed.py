@@ -13,6 +13,7 @@ trial derives its own PRIOR map from it, the map every method of the campaign is
       error_rms: 2.0             # correlated map error added to the prior only, map units
       error_corr_m: 400          #   its correlation length, metres
       offset: 0.5                # added to every reading, map units
+      offset_std: 0.0            # and an offset drawn per trial from N(0, offset_std^2)
       tide_amplitude: 1.2        # A sin(2 pi t / T + phase) added to the readings, map units
       tide_period_s: 44712       #   T, seconds (default: the M2 tide); phase drawn per trial
       drift_per_h: 0.1           # a gravimeter's drift, map units per hour of mission
@@ -38,9 +39,11 @@ Definitions
   nowhere else) and never seen by the prior; the error is drawn at the prior's cells.
 - The readings are ``seabed + relief`` read along the true track (bilinear), plus the
   sensor's noise, map error and lag as without the block, plus
-  ``offset + tide_amplitude sin(2 pi t / tide_period_s + phase) + drift_per_h t / 3600``
-  with ``t`` the sample time (seconds from the start) and ``phase`` uniform on
-  ``[0, 2 pi)`` per trial (:func:`reading_offsets`).
+  ``offset + drawn + tide_amplitude sin(2 pi t / tide_period_s + phase) + drift_per_h t
+  / 3600`` with ``t`` the sample time (seconds from the start), ``phase`` uniform on
+  ``[0, 2 pi)`` and ``drawn`` normal of 1-sigma ``offset_std`` per trial
+  (:func:`reading_offsets`): a trial's offset drawn from a stated spread, against which
+  a filter's covariance, averaged over the trials, can be held.
 - Misregistration moves the prior's content by ``(dx, dy)`` metres: the prior keeps its
   cells and takes the value ``prior(x - dx, y - dy)`` (bilinear, positions past an edge
   clamped to it) (:func:`shifted_values`). ``misregistration_m`` draws the direction
@@ -121,6 +124,7 @@ class SeabedSpec(Strict):
     error_rms: float = Field(default=0.0, ge=0)
     error_corr_m: float = Field(default=0.0, ge=0)
     offset: float = 0.0
+    offset_std: float = Field(default=0.0, ge=0)
     tide_amplitude: float = Field(default=0.0, ge=0)
     tide_period_s: float = Field(default=M2_PERIOD_S, gt=0)
     drift_per_h: float = 0.0
@@ -187,7 +191,8 @@ class SeabedDraw:
     shift_m : numpy.ndarray
         ``(2,)`` the prior's misregistration ``(east, north)``, metres (truth).
     reading_offsets : numpy.ndarray
-        ``(n,)`` offset + tide + drift added to every beam's reading, map units.
+        ``(n,)`` offset (stated and drawn) + tide + drift added to every beam's reading,
+        map units.
     """
 
     sensed: Grid
@@ -663,18 +668,22 @@ def reading_offsets(times, spec: SeabedSpec, rng: np.random.Generator) -> np.nda
     times : array_like
         ``(n,)`` sample times, seconds from the start.
     spec : SeabedSpec
-        ``offset``, ``tide_amplitude`` (map units), ``tide_period_s`` (seconds),
-        ``drift_per_h`` (map units per hour).
+        ``offset`` and ``offset_std`` (the 1-sigma of an offset drawn per trial),
+        ``tide_amplitude`` (map units), ``tide_period_s`` (seconds), ``drift_per_h``
+        (map units per hour).
     rng : numpy.random.Generator
-        Source of the tide's phase (one uniform draw on ``[0, 2 pi)``).
+        Source of the tide's phase (one uniform draw on ``[0, 2 pi)``), then of the
+        drawn offset (one normal draw, only when ``offset_std`` is positive: a block
+        without it draws as before).
 
     Returns
     -------
     numpy.ndarray
-        ``(n,)`` ``offset + tide_amplitude sin(2 pi t / tide_period_s + phase)
+        ``(n,)`` ``offset + drawn + tide_amplitude sin(2 pi t / tide_period_s + phase)
         + drift_per_h t / 3600``, map units.
     """
     t = np.asarray(times, dtype=float)
     phase = rng.uniform(0.0, 2.0 * np.pi)
+    drawn = rng.normal(0.0, spec.offset_std) if spec.offset_std > 0 else 0.0
     tide = spec.tide_amplitude * np.sin(2.0 * np.pi * t / spec.tide_period_s + phase)
-    return spec.offset + tide + spec.drift_per_h * t / 3600.0
+    return spec.offset + drawn + tide + spec.drift_per_h * t / 3600.0
