@@ -95,11 +95,8 @@ class Grid:
         std = self.meta.get("registration_std_m")
         if std is None:
             return 0.0
-        try:
-            value = float(std)
-        except (TypeError, ValueError):
-            value = float("nan")
-        if not (np.isfinite(value) and value >= 0):
+        value = registration_std_value(std)
+        if np.isnan(value):
             raise MapError(f"map {self.name!r}: registration_std_m must be >= 0, got {std!r}")
         return value * value
 
@@ -204,6 +201,19 @@ class Grid:
             f"Grid(name={self.name!r}, kind={self.kind!r}, shape=({ny}, {nx}), "
             f"cell=({self.dx:g}, {self.dy:g}) m, units={self.units!r})"
         )
+
+
+def registration_std_value(raw) -> float:
+    """A stated registration 1-sigma as a float, metres; NaN unless a finite number >= 0.
+
+    ``raw`` may be a number, a numeric string or an array (its first element: a netCDF
+    attribute reads as one).
+    """
+    try:
+        value = float(np.asarray(raw).reshape(-1)[0])
+    except (TypeError, ValueError, IndexError):
+        return float("nan")
+    return value if np.isfinite(value) and value >= 0 else float("nan")
 
 
 def _stored_values(values) -> np.ndarray:

@@ -31,7 +31,7 @@ from geofix._atomic import write_atomic
 from geofix.errors import MapError
 from geofix.maps import project
 from geofix.maps.bundled import BUILTIN_PREFIX, BUNDLED_MAPS, builtin_name, builtin_path
-from geofix.maps.grid import KINDS, Grid
+from geofix.maps.grid import KINDS, Grid, registration_std_value
 from geofix.memory import cells_bytes, check_allocation
 
 NETCDF_SUFFIXES = (".nc", ".nc4", ".cdf", ".grd", ".netcdf")
@@ -372,11 +372,8 @@ def stated_registration(attrs: dict, source: str) -> dict:
     if "registration_std_m" not in attrs:
         return {}
     raw = attrs["registration_std_m"]
-    try:
-        value = float(np.asarray(raw).reshape(-1)[0])
-    except (TypeError, ValueError, IndexError):
-        value = float("nan")
-    if not (np.isfinite(value) and value >= 0):
+    value = registration_std_value(raw)
+    if np.isnan(value):
         raise MapError(f"{source}: registration_std_m must be a number >= 0, got {raw!r}")
     return {"registration_std_m": value}
 
