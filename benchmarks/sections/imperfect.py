@@ -112,10 +112,12 @@ def build(quick: bool) -> str:
             best = ("-", float("inf"))
             default_nees = []
             for spec in methods:
-                rms, *rest = _cells(result.frame, spec, cell)
-                table.append([label, spec, rms, _ratio(rms, bound), _ratio(rms, aware), *rest])
+                rms, nees, *rest = _cells(result.frame, spec, cell)
+                table.append(
+                    [label, spec, rms, _ratio(rms, bound), _ratio(rms, aware), nees, *rest]
+                )
                 if spec in DEFAULT_FILTERS:
-                    default_nees.append(_number(rest[0]))
+                    default_nees.append(_number(nees))
                     if _number(rms) < best[1]:
                         best = (spec, _number(rms))
             if label == DRAWN_OFFSET_ROW:
