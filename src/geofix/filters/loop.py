@@ -41,6 +41,7 @@ from geofix.errors import ConfigError
 from geofix.filters.convergence import posterior_points
 from geofix.filters.nuisance import (
     ROUGHNESS_WINDOW_CELLS,
+    WHITE_EXCESS,
     CommonOffset,
     ProfileRoughness,
     RepresentationShare,
@@ -495,18 +496,42 @@ class FilterStepper:
         self._learn_roughness(obs, mean, step)
         extra = map_error_variance(self._representation, mean, obs.heading, obs.offsets)
         floor = self.roughness.variance
+        declared = np.asarray(obs.noise_var, dtype=float)
+        base = self._white_floored(declared)
         if not extra.any() and floor <= 0.0:
-            return obs
+            return obs if base is declared else replace(obs, noise_var=base)
         # the innovations measure each beam's own variance: the share is fitted to the
         # layer as it is, and the beams that share one map error are counted once after
-        declared = np.asarray(obs.noise_var, dtype=float)
         self._ping_variances = (declared, extra)
         counted = correlated_share(obs.offsets, self.grid.cell_size, step)
         layer = counted * self._share.value * extra
         # the relief the map lacks is measured over a window of track: shared across it
         window = ROUGHNESS_WINDOW_CELLS * self.grid.cell_size
         lacked = correlated_share(obs.offsets, window, step) * floor
-        return replace(obs, noise_var=declared + np.maximum(layer, lacked))
+        return replace(obs, noise_var=base + np.maximum(layer, lacked))
+
+    def _white_floored(self, declared: np.ndarray) -> np.ndarray:
+        """Each beam's declared variance, raised to the readings' white scatter if larger.
+
+        The white part of the readings' departure beyond the map's along the track
+        (:attr:`~geofix.filters.nuisance.ProfileRoughness.white`: independent from ping
+        to ping, so no share of it is counted across pings) is a measured noise that does
+        not depend on where the filter thinks it is. Where it exceeds
+        :data:`~geofix.filters.nuisance.WHITE_EXCESS` times a beam's declared variance
+        (map units squared), the declared noise is too small and the beam takes the white
+        scatter instead: a single beam told 2 m against a 10' grid whose readings scatter
+        by 9 m would otherwise weigh each ping twenty times too sharply, and one ping can
+        then empty a particle set. The representation share is still fitted against the
+        declared variance (``declared`` is returned unchanged, the same object, where no
+        beam is raised), so where the floor acts the share takes up part of the same
+        scatter and the two overlap: the wider of the readings measured on the real
+        tracks, where the floor alone left claims beyond 3 sigma.
+        """
+        white = self.roughness.white
+        raised = white > WHITE_EXCESS * declared
+        if not raised.any():
+            return declared
+        return np.where(raised, white, declared)
 
     def _learn_roughness(self, obs: Observation, mean: np.ndarray, step: float | None) -> None:
         """Fold the ping into :attr:`roughness`: its mean reading and the map's at ``mean``.

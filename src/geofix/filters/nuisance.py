@@ -818,6 +818,11 @@ MAX_ROUGHNESS_RHO = 0.95
 #: same relief differ by chance by tens of percent over a window, which would otherwise raise
 #: a floor on a map that lacks nothing.
 LACKING_SHARE = 0.5
+#: A beam's declared variance is raised to the readings' white scatter beyond the map's
+#: (:attr:`ProfileRoughness.white`) only where that scatter exceeds this many times it: on
+#: a map that is the seabed the white part is the declared noise itself, up to its sampling
+#: spread, and is left alone.
+WHITE_EXCESS = 4.0
 #: Weight kept per ping by :class:`ProfileRoughness`'s running sums.
 ROUGHNESS_FORGETTING = 0.998
 
@@ -1001,6 +1006,7 @@ def correlated_share(offsets, cell: float, step_m: float | None = None) -> float
 __all__ = [
     "GRAVITY_FAST_OFFSET_WALK",
     "MAP_MODELS",
+    "WHITE_EXCESS",
     "CommonOffset",
     "PointReads",
     "ProfileRoughness",
