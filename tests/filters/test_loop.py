@@ -163,3 +163,18 @@ def test_on_a_map_that_is_the_seabed_no_beam_takes_the_white_scatter(monkeypatch
     run_campaign(demo, ["pmf", "pf"], trials=2, jobs=1, out_dir=tmp_path)
     assert seen["filled"] > 0.5 * seen["pings"]
     assert seen["raised"] == 0
+
+
+def test_a_method_s_own_offset_walk_replaces_the_settings_walk(synthetic_grid):
+    from geofix.errors import ConfigError
+    from geofix.filters.pf import Pf
+    from geofix.filters.pmf import Pmf
+
+    declared = FilterSettings(depth_bias_walk=5e-3)
+    still = FilterStepper(Pmf(offset_walk=0.0), synthetic_grid, declared)
+    assert still.settings.depth_bias_walk == 0.0 and still.offset.walk == 0.0
+    assert FilterStepper(Pf(offset_walk=2e-4), synthetic_grid, declared).offset.walk == 2e-4
+    assert FilterStepper(Pmf(), synthetic_grid, declared).offset.walk == 5e-3
+    for bad in (-1e-3, float("inf")):
+        with pytest.raises(ConfigError, match="offset_walk"):
+            Pf(offset_walk=bad)

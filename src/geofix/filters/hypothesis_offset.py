@@ -67,6 +67,20 @@ def walk_factors(fast: float) -> tuple[float, ...]:
     return (1.0,) if fast == 0 else (1.0, float(fast))
 
 
+def check_offset_walk(method: str, walk: float | None) -> None:
+    """Refuse a method's ``offset_walk`` that is not None, finite and >= 0.
+
+    Parameters
+    ----------
+    method : str
+        The method's name, for the message.
+    walk : float or None
+        Variance the common offset gains per second, map units squared per second.
+    """
+    if walk is not None and not (np.isfinite(walk) and walk >= 0):
+        raise ConfigError(f"{method}: offset_walk must be finite and >= 0, got {walk}")
+
+
 #: Share of each walk's prior probability a hypothesis gets back at every ping, so that a
 #: walk it set aside can return where the map's error changes its character.
 WALK_RETURN = 0.01
@@ -397,6 +411,7 @@ def regridded_offsets(mean: np.ndarray, old, new, shape) -> np.ndarray:
 __all__ = [
     "WALK_RETURN",
     "HypothesisOffset",
+    "check_offset_walk",
     "mixed_offsets",
     "regridded_offsets",
     "walk_factors",

@@ -169,6 +169,9 @@ class FilterStepper:
     ):
         self.filter: Any = filt  # its steps are typed by each filter's own state
         settings = settings or FilterSettings()
+        walk = getattr(filt, "offset_walk", None)  # the method's own, above the settings'
+        if walk is not None:
+            settings = replace(settings, depth_bias_walk=float(walk))
         self.settings = settings.for_map_model(filt.map_model)
         if grid.interpolation != self.settings.interpolation:
             grid = replace(grid, interpolation=self.settings.interpolation)

@@ -68,7 +68,11 @@ from geofix.filters._weights import (
     systematic_resample,
 )
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.hypothesis_offset import HypothesisOffset, walk_factors
+from geofix.filters.hypothesis_offset import (
+    HypothesisOffset,
+    check_offset_walk,
+    walk_factors,
+)
 from geofix.filters.likelihood import TerrainLikelihood, check_field_variance
 from geofix.filters.motion import ErrorStateTrack, check_motion_model, takes_error_state
 from geofix.filters.nuisance import check_map_model
@@ -201,6 +205,10 @@ class ParticleSettings(RecursiveFilter):
         rate alone). None (the default): the map kind's
         (:func:`geofix.filters.nuisance.default_fast_offset_walk`: 10 on a gravity map, 0
         on a depth or magnetic map).
+    offset_walk : float or None
+        The common offset's walk, map units squared per second, as
+        :class:`geofix.filters.pmf.Pmf`'s: 0 an offset that does not move, None (the
+        default) the navigator's ``depth_bias_walk`` (1e-3).
     """
 
     name: ClassVar[str] = "particles"
@@ -219,10 +227,12 @@ class ParticleSettings(RecursiveFilter):
     ambiguity_mass: float = 0.05
     map_model: str = "imperfect"
     fast_offset_walk: float | None = None
+    offset_walk: float | None = None
 
     def __post_init__(self) -> None:
         if self.fast_offset_walk is not None:
             walk_factors(self.fast_offset_walk)
+        check_offset_walk(self.name, self.offset_walk)
         name = self.name
         if self.particles < 10 or self.max_particles < self.particles:
             raise ConfigError(

@@ -74,7 +74,11 @@ from geofix.filters import _grid_kernels as grid_kernels
 from geofix.filters import _grid_ops as ops
 from geofix.filters._grid_ops import REGRID_COPIES, check_regrid
 from geofix.filters.base import Motion, Observation, RecursiveFilter
-from geofix.filters.hypothesis_offset import HypothesisOffset, walk_factors
+from geofix.filters.hypothesis_offset import (
+    HypothesisOffset,
+    check_offset_walk,
+    walk_factors,
+)
 from geofix.filters.likelihood import TerrainLikelihood, check_field_variance, node_field_variance
 from geofix.filters.motion import (
     ErrorStateTrack,
@@ -251,6 +255,12 @@ class Pmf(RecursiveFilter):
         rate alone). None (the default): the map kind's
         (:func:`geofix.filters.nuisance.default_fast_offset_walk`: 10 on a gravity map, 0
         on a depth or magnetic map).
+    offset_walk : float or None
+        Variance the common offset gains per second, map units squared per second (a
+        tide, a datum, a gravimeter's drift); 0: an offset that does not move. None (the
+        default): the stepper's settings (the navigator's ``depth_bias_walk``, 1e-3).
+        Where the offset really is constant, the declared walk widens the covariance
+        beyond the errors: the section *Imperfect maps* shows both.
 
     References
     ----------
@@ -289,10 +299,12 @@ class Pmf(RecursiveFilter):
     use_dvl: bool = True
     map_model: str = "imperfect"
     fast_offset_walk: float | None = None
+    offset_walk: float | None = None
 
     def __post_init__(self) -> None:
         if self.fast_offset_walk is not None:
             walk_factors(self.fast_offset_walk)
+        check_offset_walk(self.name, self.offset_walk)
         check_motion_model("pmf", self.model)
         if self.points < 5 or self.points % 2 == 0:
             raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
