@@ -98,11 +98,16 @@ def default_offset_std(grid: Grid) -> float:
     Returns
     -------
     float
-        A depth map: ``5 m + 0.2 %`` of the median water depth (a tide, a datum, a
-        sound-speed error); a gravity map: 5 mGal; a magnetic map: 20 nT (the diurnal
-        variation left after a base-station correction, and the offset between the
-        map's crustal model and the vehicle's reference field).
+        What the map states (:attr:`geofix.maps.grid.Grid.stated_offset_std`, a file's
+        ``offset_std`` attribute) when it states it; else a depth map: ``5 m + 0.2 %`` of
+        the median water depth (a tide, a datum, a sound-speed error); a gravity map:
+        5 mGal; a magnetic map: 20 nT (the diurnal variation left after a base-station
+        correction, and the offset between the map's crustal model and the vehicle's
+        reference field).
     """
+    stated = grid.stated_offset_std
+    if stated is not None:
+        return stated
     if grid.kind == "gravity":
         return GRAVITY_OFFSET_STD_MGAL
     if grid.kind == "magnetic":

@@ -100,6 +100,29 @@ class Grid:
             raise MapError(f"map {self.name!r}: registration_std_m must be >= 0, got {std!r}")
         return value * value
 
+    @property
+    def stated_offset_std(self) -> float | None:
+        """The 1-sigma the map states for its level against what a sensor reads, map units.
+
+        ``meta["offset_std"]``: how far the map's level may sit from the readings' (a
+        datum, a reference field or formula, a reduction to another height), the prior of
+        the filters' common offset in place of the map kind's default
+        (:func:`geofix.filters.nuisance.default_offset_std`); None when the map states
+        none.
+
+        Raises
+        ------
+        MapError
+            The stated value is not a number at least 0.
+        """
+        std = self.meta.get("offset_std")
+        if std is None:
+            return None
+        value = registration_std_value(std)
+        if np.isnan(value):
+            raise MapError(f"map {self.name!r}: offset_std must be >= 0, got {std!r}")
+        return value
+
     def with_registration(self, std_m: float) -> Grid:
         """The map stating that it is registered to ``std_m`` metres (1-sigma per axis).
 
@@ -204,7 +227,7 @@ class Grid:
 
 
 def registration_std_value(raw) -> float:
-    """A stated registration 1-sigma as a float, metres; NaN unless a finite number >= 0.
+    """A stated 1-sigma (a registration's, metres; a level's) as a float; NaN unless >= 0.
 
     ``raw`` may be a number, a numeric string or an array (its first element: a netCDF
     attribute reads as one).

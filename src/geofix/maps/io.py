@@ -336,7 +336,7 @@ def _read_netcdf(path: Path, variable: str | None, source: str, precision=(None,
         y = _numbers(da[yname], f"coordinate {yname!r}", source)
         xa, ya = dict(da[xname].attrs), dict(da[yname].attrs)
         attrs = dict(da.attrs)
-        extra = stated_registration({**ds.attrs, **attrs}, source)
+        extra = stated_numbers({**ds.attrs, **attrs}, source)
         geographic = _is_geographic(str(xname), str(yname), xa, ya, x, y)
         x, y, flips = _ascending_axes(x, y, source)
         within = _storage_within(precision, geographic)
@@ -348,8 +348,23 @@ def _read_netcdf(path: Path, variable: str | None, source: str, precision=(None,
     )
 
 
+#: The numbers a map file may state about itself, as attributes on the file or its variable:
+#: how well it is registered (metres, :attr:`geofix.maps.grid.Grid.registration_var`) and
+#: the 1-sigma of its level against a sensor's (map units,
+#: :attr:`geofix.maps.grid.Grid.stated_offset_std`).
+STATED_ATTRIBUTES = ("registration_std_m", "offset_std")
+
+
 def stated_registration(attrs: dict, source: str) -> dict:
     """``{"registration_std_m": value}`` when a map file states its registration.
+
+    :func:`stated_numbers` for that attribute alone.
+    """
+    return stated_numbers(attrs, source, ("registration_std_m",))
+
+
+def stated_numbers(attrs: dict, source: str, names=STATED_ATTRIBUTES) -> dict:
+    """``{name: value}`` of each of :data:`STATED_ATTRIBUTES` a map file states.
 
     Parameters
     ----------
@@ -357,25 +372,30 @@ def stated_registration(attrs: dict, source: str) -> dict:
         The file's and the variable's attributes (the variable's win).
     source : str
         For messages.
+    names : sequence of str
+        The attributes to read.
 
     Returns
     -------
     dict
-        Empty when no attribute ``registration_std_m`` is given; its value, metres, for
-        :attr:`geofix.maps.grid.Grid.registration_var`.
+        Each given attribute's value (a 1-sigma: metres for ``registration_std_m``, map
+        units for ``offset_std``); empty when none is given.
 
     Raises
     ------
     MapError
-        The attribute is not a finite number at least 0.
+        An attribute is not a finite number at least 0.
     """
-    if "registration_std_m" not in attrs:
-        return {}
-    raw = attrs["registration_std_m"]
-    value = registration_std_value(raw)
-    if np.isnan(value):
-        raise MapError(f"{source}: registration_std_m must be a number >= 0, got {raw!r}")
-    return {"registration_std_m": value}
+    out = {}
+    for name in names:
+        if name not in attrs:
+            continue
+        raw = attrs[name]
+        value = registration_std_value(raw)
+        if np.isnan(value):
+            raise MapError(f"{source}: {name} must be a number >= 0, got {raw!r}")
+        out[name] = value
+    return out
 
 
 def _pick_variable(ds, variable: str | None, source: str) -> str:
