@@ -77,3 +77,31 @@ def test_a_real_gravity_track_holds_on_a_model_that_states_its_level():
     ins = np.hypot(*(inputs.indicated - inputs.truth).T)
     assert error[-1] < ins[-1]
     assert np.mean(nees(ests, inputs.truth) <= NEES_3SIGMA) >= 0.99
+
+
+def test_a_replay_states_the_level_it_is_told():
+    from typer.testing import CliRunner
+
+    from geofix.cli import app
+    from geofix.replay import replay_log
+
+    def first_offset(offset_std):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", GeofixWarning)  # the excerpt's placed times
+            result, _ = replay_log(
+                str(TRACKS / "ew0112_excerpt.m77t"),
+                [str(TRACKS / "eigen6c4_10min_ew0112.nc")],
+                ["pmf"],
+                field_name=["gravity"],
+                hours=0.25,
+                offset_std=offset_std,
+            )
+        return result.estimates["pmf"][0].depth_bias
+
+    # the ship reads about 33 mGal above the model here: the first ping's offset is that
+    # residual shrunk by the prior, prior / (prior + noise); a 5 mGal prior shrinks it more
+    assert first_offset([5.0]) < first_offset(None) - 1.0
+    args = ["replay", str(TRACKS / "ew0112_excerpt.m77t"), "--method", "pmf", "--field"]
+    args += ["gravity", "--map", str(TRACKS / "eigen6c4_10min_ew0112.nc")]
+    result = CliRunner().invoke(app, [*args, "--offset-std", "5", "--offset-std", "5"])
+    assert result.exit_code != 0 and "2 --offset-std values for 1 maps" in result.output

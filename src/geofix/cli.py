@@ -549,6 +549,14 @@ def replay_command(
         float | None, typer.Option(help="Replay this many hours (default: to the end).")
     ] = None,
     registration_std: RegistrationStd = None,
+    offset_std: Annotated[
+        list[float] | None,
+        typer.Option(
+            help="The 1-sigma of a map's level against its field's readings, map units: the "
+            "prior of the filters' common offset (over the map file's offset_std); one per "
+            "--map, in its order."
+        ),
+    ] = None,
 ) -> None:
     """Replay a logged mission ping by ping through the online navigator."""
 
@@ -577,6 +585,7 @@ def replay_command(
             hours=hours,
             field_noise_std=dict(zip((field or [])[1:], stds[1:], strict=False)),
             registration_std_m=registration_std,
+            offset_std=offset_std or None,
         )
         if json_output:
             sys.stdout.write(json.dumps(result.summary) + "\n")

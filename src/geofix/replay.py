@@ -998,6 +998,25 @@ def _log_floor(curves: list[np.ndarray]) -> float:
     return float(0.5 * positive.min()) if positive.size else 1.0
 
 
+def stated_levels(grids, stds) -> list:
+    """``grids`` with the first ``len(stds)`` stating those levels' 1-sigma (map units).
+
+    Raises
+    ------
+    ConfigError
+        More values than maps.
+    MapError
+        A value that is not a number at least 0.
+    """
+    grids, stds = list(grids), [float(v) for v in stds]
+    if len(stds) > len(grids):
+        raise ConfigError(
+            f"replay: {len(stds)} --offset-std values for {len(grids)} maps: give one per "
+            "map, in the order of --map"
+        )
+    return [g.with_offset_std(v) for g, v in zip(grids, stds, strict=False)] + grids[len(stds) :]
+
+
 def replay_log(
     log,
     map_path,
@@ -1014,6 +1033,7 @@ def replay_log(
     hours: float | None = None,
     field_noise_std=None,
     registration_std_m: float | None = None,
+    offset_std=None,
 ) -> tuple[ReplayResult, dict]:
     """``geofix replay``: read the log and the map, replay, write the outputs.
 
@@ -1048,6 +1068,10 @@ def replay_log(
         How well the primary map is registered, metres (1-sigma per axis;
         ``--registration-std``), over what the map file states
         (:meth:`geofix.maps.grid.Grid.with_registration`).
+    offset_std : sequence of float, optional
+        The 1-sigma of each map's level against its field's readings, map units
+        (``--offset-std``): one per map in the order of ``map_path``, or fewer (the first
+        maps'), over what the map files state (:meth:`geofix.maps.grid.Grid.with_offset_std`).
 
     Returns
     -------
@@ -1113,6 +1137,9 @@ def replay_log(
     mission = window_mission(mission, start_h, hours)
     if registration_std_m is not None:
         grid = grid.with_registration(registration_std_m)
+    if offset_std:
+        levelled = stated_levels([grid, *field_grids], offset_std)
+        grid, field_grids = levelled[0], tuple(levelled[1:])
     result = replay(
         mission,
         grid,

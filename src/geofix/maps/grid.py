@@ -123,6 +123,18 @@ class Grid:
             raise MapError(f"map {self.name!r}: offset_std must be >= 0, got {std!r}")
         return value
 
+    def with_offset_std(self, std: float) -> Grid:
+        """The map stating its level to ``std`` map units (1-sigma; :attr:`stated_offset_std`).
+
+        Raises
+        ------
+        MapError
+            ``std`` is not a number at least 0.
+        """
+        stated = replace(self, meta={**self.meta, "offset_std": std})
+        _ = stated.stated_offset_std  # refuses a value that is not a number >= 0
+        return stated
+
     def with_registration(self, std_m: float) -> Grid:
         """The map stating that it is registered to ``std_m`` metres (1-sigma per axis).
 
