@@ -105,3 +105,9 @@ def test_a_replay_states_the_level_it_is_told():
     args += ["gravity", "--map", str(TRACKS / "eigen6c4_10min_ew0112.nc")]
     result = CliRunner().invoke(app, [*args, "--offset-std", "5", "--offset-std", "5"])
     assert result.exit_code != 0 and "2 --offset-std values for 1 maps" in result.output
+    serve = ["serve", "--map", "builtin:grav_1km", "--port", "0"]
+    result = CliRunner().invoke(app, [*serve, "--offset-std", "5", "--offset-std", "5"])
+    assert result.exit_code != 0
+    assert "serve: 2 --offset-std values for 1 maps" in result.output
+    result = CliRunner().invoke(app, [*serve, "--offset-std", "-3"])
+    assert result.exit_code != 0 and "offset_std must be >= 0" in result.output

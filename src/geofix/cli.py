@@ -493,6 +493,17 @@ RegistrationStd = Annotated[
 ]
 
 
+#: ``--offset-std`` of replay and serve: each map's stated level, one per ``--map``.
+OffsetStd = Annotated[
+    list[float] | None,
+    typer.Option(
+        help="The 1-sigma of a map's level against its field's readings, map units: the "
+        "prior of the filters' common offset (over the map file's offset_std); one per "
+        "--map, in its order."
+    ),
+]
+
+
 @app.command("replay")
 def replay_command(
     log: Annotated[
@@ -549,14 +560,7 @@ def replay_command(
         float | None, typer.Option(help="Replay this many hours (default: to the end).")
     ] = None,
     registration_std: RegistrationStd = None,
-    offset_std: Annotated[
-        list[float] | None,
-        typer.Option(
-            help="The 1-sigma of a map's level against its field's readings, map units: the "
-            "prior of the filters' common offset (over the map file's offset_std); one per "
-            "--map, in its order."
-        ),
-    ] = None,
+    offset_std: OffsetStd = None,
 ) -> None:
     """Replay a logged mission ping by ping through the online navigator."""
 
@@ -673,6 +677,7 @@ def serve_command(
         float | None, typer.Option(help="Time budget of one update, seconds (default 60).")
     ] = None,
     registration_std: RegistrationStd = None,
+    offset_std: OffsetStd = None,
 ) -> None:
     """Serve the navigator over TCP: newline-delimited JSON, one navigator per connection."""
     given = {
@@ -692,6 +697,7 @@ def serve_command(
             check_settings,
             load_field_maps,
             load_ins_model,
+            stated_levels,
         )
         from geofix.server import Session, serve
         from geofix.server_limits import ServerLimits
@@ -706,6 +712,9 @@ def serve_command(
             grid = grid.with_registration(registration_std)
         error = None if primary.startswith("builtin:") else load_map_error(primary)
         field_grids = load_field_maps(further, grid)
+        if offset_std:
+            levelled = stated_levels([grid, *field_grids], offset_std, "serve")
+            grid, field_grids = levelled[0], tuple(levelled[1:])
         settings = {}
         if noise_std is not None:
             settings["noise_std"] = noise_std

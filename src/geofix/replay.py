@@ -998,8 +998,10 @@ def _log_floor(curves: list[np.ndarray]) -> float:
     return float(0.5 * positive.min()) if positive.size else 1.0
 
 
-def stated_levels(grids, stds) -> list:
+def stated_levels(grids, stds, command: str = "replay") -> list:
     """``grids`` with the first ``len(stds)`` stating those levels' 1-sigma (map units).
+
+    ``command`` names the command in the message.
 
     Raises
     ------
@@ -1011,7 +1013,7 @@ def stated_levels(grids, stds) -> list:
     grids, stds = list(grids), [float(v) for v in stds]
     if len(stds) > len(grids):
         raise ConfigError(
-            f"replay: {len(stds)} --offset-std values for {len(grids)} maps: give one per "
+            f"{command}: {len(stds)} --offset-std values for {len(grids)} maps: give one per "
             "map, in the order of --map"
         )
     return [g.with_offset_std(v) for g, v in zip(grids, stds, strict=False)] + grids[len(stds) :]
