@@ -60,9 +60,9 @@ NEES_3SIGMA = 11.83
 
 
 def test_a_real_gravity_track_holds_on_a_model_that_states_its_level():
-    # the ship's anomaly sits about 32 mGal above the model's along this track: with the
-    # map's stated 25 mGal as the offset's prior pmf ends better than the INS alone (with
-    # the gravity default of 5 mGal it ends 4.5 times the INS's 18.6 km off)
+    # the ship's anomaly sits about 32 mGal above the model's along this track, six times
+    # the gravity default's 5 mGal: with the map's stated 25 mGal as the offset's prior
+    # pmf ends better than the INS alone
     grid = load_grid(TRACKS / "eigen6c4_10min_ew0112.nc")
     assert grid.kind == "gravity" and grid.stated_offset_std == 25.0
     with warnings.catch_warnings():

@@ -38,8 +38,9 @@ WORKERS = 2
 NEES_3SIGMA = 11.83
 """``e^T C^-1 e`` at the 99.73 % quantile of a chi-square with 2 degrees of freedom: the
 2-D ellipse of the probability a 1-D 3-sigma interval holds."""
-BEYOND_3SIGMA = 0.0027
-"""Share of pings a consistent covariance puts beyond :data:`NEES_3SIGMA`."""
+BEYOND_3SIGMA = float(np.exp(-NEES_3SIGMA / 2.0))
+"""Share of pings a consistent covariance puts beyond :data:`NEES_3SIGMA` (0.27 %: a
+chi-square of 2 degrees of freedom exceeds ``x`` with probability ``exp(-x / 2)``)."""
 
 PUBLISHED = [
     ["MBARI TRN (Monterey Bay)", "AUV multibeam / DVL", "metre-scale survey maps", "≈ 3 m"],

@@ -12,7 +12,6 @@ crops with ``--gravity`` (the gravity anomaly needs ``boule``, the ``data`` extr
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
@@ -31,8 +30,8 @@ STEP_DEG = 1.0 / 6.0
 """ETOPO1 node spacing, degrees (10 arc-minutes)."""
 
 
-def cut_excerpt(source: Path, first: int, last: int, out: Path) -> tuple[float, ...]:
-    """Copy the header line and data records ``first .. last`` byte for byte.
+def cut_excerpt(source: Path, first: int, last: int, out: Path | None) -> tuple[float, ...]:
+    """Copy the header line and data records ``first .. last`` byte for byte (None: no copy).
 
     Returns
     -------
@@ -42,7 +41,8 @@ def cut_excerpt(source: Path, first: int, last: int, out: Path) -> tuple[float, 
     with source.open("rb") as handle:
         lines = handle.readlines()
     chosen = lines[1 + first : 2 + last]
-    out.write_bytes(lines[0] + b"".join(chosen))
+    if out is not None:
+        out.write_bytes(lines[0] + b"".join(chosen))
     header = lines[0].decode("latin-1").rstrip("\r\n").split("\t")
     lat_at, lon_at = header.index("LAT"), header.index("LON")
     lat, lon = [], []
@@ -138,7 +138,7 @@ def main(source: Path, gravity_only: bool = False) -> None:
     for cruise, (first, last) in EXCERPTS.items():
         excerpt = HERE / f"{cruise}_excerpt.m77t"
         if gravity_only:
-            box = cut_excerpt(source / "mgd77" / f"{cruise}.m77t", first, last, Path(os.devnull))
+            box = cut_excerpt(source / "mgd77" / f"{cruise}.m77t", first, last, None)
         else:
             box = cut_excerpt(source / "mgd77" / f"{cruise}.m77t", first, last, excerpt)
             topo = source / "global" / "earth-topography-10arcmin.nc"

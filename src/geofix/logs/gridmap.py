@@ -8,7 +8,7 @@ import numpy as np
 
 from geofix.errors import ConfigError, MapError
 from geofix.maps.gridding import GriddedMap, grid_soundings, save_gridded
-from geofix.maps.io import stated_registration
+from geofix.maps.io import stated_numbers
 
 
 def _read_soundings(path: str | Path) -> tuple[np.ndarray, str | None, str]:
@@ -110,7 +110,7 @@ def grid_log(
         raise ConfigError(f"cannot create the folder of {out}: {exc}") from None
     meta = {"source": Path(str(path)).name, "projection": frame, "format": "soundings"}
     if registration_std_m is not None:
-        meta.update(stated_registration({"registration_std_m": registration_std_m}, "grid"))
+        meta.update(stated_numbers({"registration_std_m": registration_std_m}, "grid"))
     try:
         gridded = grid_soundings(
             pts[:, 0], pts[:, 1], pts[:, 2], cell_m, max_gap_cells, name=name, meta=meta

@@ -92,13 +92,8 @@ class Grid:
         misregistration moves every feature of the map alike, so no reading can show it:
         a position matched on the map is uncertain by it besides its own covariance.
         """
-        std = self.meta.get("registration_std_m")
-        if std is None:
-            return 0.0
-        value = registration_std_value(std)
-        if np.isnan(value):
-            raise MapError(f"map {self.name!r}: registration_std_m must be >= 0, got {std!r}")
-        return value * value
+        std = self._stated_std("registration_std_m")
+        return 0.0 if std is None else std * std
 
     @property
     def stated_offset_std(self) -> float | None:
@@ -115,12 +110,16 @@ class Grid:
         MapError
             The stated value is not a number at least 0.
         """
-        std = self.meta.get("offset_std")
-        if std is None:
+        return self._stated_std("offset_std")
+
+    def _stated_std(self, key: str) -> float | None:
+        """``meta[key]``, a stated 1-sigma, as a float; None when absent (MapError if < 0)."""
+        raw = self.meta.get(key)
+        if raw is None:
             return None
-        value = registration_std_value(std)
+        value = registration_std_value(raw)
         if np.isnan(value):
-            raise MapError(f"map {self.name!r}: offset_std must be >= 0, got {std!r}")
+            raise MapError(f"map {self.name!r}: {key} must be >= 0, got {raw!r}")
         return value
 
     def with_offset_std(self, std: float) -> Grid:

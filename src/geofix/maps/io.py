@@ -355,14 +355,6 @@ def _read_netcdf(path: Path, variable: str | None, source: str, precision=(None,
 STATED_ATTRIBUTES = ("registration_std_m", "offset_std")
 
 
-def stated_registration(attrs: dict, source: str) -> dict:
-    """``{"registration_std_m": value}`` when a map file states its registration.
-
-    :func:`stated_numbers` for that attribute alone.
-    """
-    return stated_numbers(attrs, source, ("registration_std_m",))
-
-
 def stated_numbers(attrs: dict, source: str, names=STATED_ATTRIBUTES) -> dict:
     """``{name: value}`` of each of :data:`STATED_ATTRIBUTES` a map file states.
 
