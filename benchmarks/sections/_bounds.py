@@ -29,10 +29,26 @@ __all__ = [
 ]
 
 
+#: Processes the bounds of a scenario's trials are computed in.
+BOUND_JOBS = 2
+
+
 def trial_bounds(scen, trials: int, genie: tuple[str, ...] = ()) -> dict:
     """``{name: (trials, n) array}``, m^2, for trials ``0 .. trials-1`` as simulated.
 
     Keys ``crlb`` and ``zzb``, each also with the suffix ``_simulator``; ``genie`` plus
     each suffix named in ``genie`` (NaN where its grid no longer resolves the posterior).
     """
-    return scenario_bound_tracks(scen, trials, genie)
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    from geofix.evaluate._pool import worker_start_method
+
+    workers = max(1, min(BOUND_JOBS, trials))
+    context = get_context(worker_start_method())
+    with ProcessPoolExecutor(workers, mp_context=context) as pool:
+
+        def mapper(function, indices):
+            return pool.map(function, indices, chunksize=-(-trials // workers))
+
+        return scenario_bound_tracks(scen, trials, genie, mapper=mapper)

@@ -20,6 +20,9 @@ WINDOWS = ((0.0, 24.0), (24.0, 12.0))
 QUICK = {"ew0112": ((0.0, 6.0),)}
 """The ``--quick`` run: one 6 h segment."""
 METHODS = ("pmf", "mpf", "pf")
+#: Settings run beside the defaults on the held-out seeds: per-path offsets pooled with
+#: the neighbours' at each resampling (``offset_pool``, in particle spacings).
+POOLED = ("pf:offset_pool=2", "mpf:offset_pool=2")
 SEED = 1
 """Seed of the first segment; segment ``k`` (in table order) uses ``SEED + k`` (the
 filters' generators; the default INS has no random term)."""
@@ -70,7 +73,9 @@ class Segment(NamedTuple):
     seconds: float
 
 
-def _segment(cruise: str, start_h: float, hours: float, seed: int) -> Segment:
+def _segment(
+    cruise: str, start_h: float, hours: float, seed: int, methods: tuple = METHODS
+) -> Segment:
     from geofix.logs.mgd77 import field_segments, pick_segment
     from geofix.maps import load_grid
     from geofix.replay import replay, window_mission
@@ -83,7 +88,7 @@ def _segment(cruise: str, start_h: float, hours: float, seed: int) -> Segment:
         )
     mission = window_mission(pick_segment(missions, None), start_h, hours)
     t0 = time.perf_counter()
-    result = replay(mission, grid, list(METHODS), seed=seed)
+    result = replay(mission, grid, list(methods), seed=seed)
     return Segment(cruise, start_h, hours, grid, result, time.perf_counter() - t0)
 
 
@@ -174,10 +179,12 @@ HEADER = [
 ]
 
 
-def _seed_stats(job: tuple[str, float, float, int]) -> dict:
-    """One run of a segment at a seed: every method's stats and the INS's."""
+def _seed_stats(job: tuple) -> dict:
+    """One run of a segment at a seed ``(cruise, start_h, hours, seed[, methods])``: every
+    method's stats and the INS's (each method draws from its own stream, so the set run
+    beside it changes none of them)."""
     seg = _segment(*job)
-    stats = {spec: _method_stats(seg, spec) for spec in METHODS}
+    stats = {spec: _method_stats(seg, spec) for spec in seg.result.estimates}
     stats["ins"] = _ins_stats(seg)
     return stats
 
@@ -215,7 +222,9 @@ def _held_out(quick: bool) -> list[dict]:
 
     if quick or not HELD_OUT_SEEDS:
         return []
-    runs = [(c, *HELD_OUT_WINDOW, seed) for seed in HELD_OUT_SEEDS for c in CRUISES]
+    runs = [
+        (c, *HELD_OUT_WINDOW, seed, METHODS + POOLED) for seed in HELD_OUT_SEEDS for c in CRUISES
+    ]
     with ProcessPoolExecutor(max_workers=WORKERS) as pool:
         return list(pool.map(_seed_stats, runs))
 
@@ -228,7 +237,11 @@ def _held_out_part(held: list[dict]) -> str:
         f"Held out: the {start:g}–{start + hours:g} h segment of every cruise at "
         f"{len(HELD_OUT_SEEDS)} further seeds of the filters "
         f"({HELD_OUT_SEEDS[0]}–{HELD_OUT_SEEDS[-1]}), never run while the defaults were "
-        f"chosen ({len(held)} runs per method):\n\n" + _runs_table(held) + "\n"
+        f"chosen ({len(held)} runs per method), the defaults and beside them "
+        f"{' and '.join(f'`{m}`' for m in POOLED)} (each resampled particle's offset "
+        "averaged with its neighbours' within two particle spacings):\n\n"
+        + _runs_table(held, METHODS + POOLED)
+        + "\n"
     )
 
 
@@ -240,10 +253,10 @@ def _first_runs(segments: list[Segment]) -> list[dict]:
     ]
 
 
-def _runs_table(runs: list[dict]) -> str:
+def _runs_table(runs: list[dict], methods: tuple = METHODS) -> str:
     """Per method over ``runs``: the criterion's verdicts."""
     rows = []
-    for spec in METHODS:
+    for spec in methods:
         ratio = [r[spec]["end"] / r["ins"]["end"] for r in runs]
         claims = sum(r[spec]["claims"] for r in runs)
         rows.append(

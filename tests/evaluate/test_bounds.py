@@ -93,3 +93,19 @@ def test_valid_bound_needs_every_trial():
     info = TrialInfo(0, 1.0, 1.0, (0.0, 0.0), valid_track_m2=np.ones(2), genie_track_m2=genie)
     end, track = bounds.valid_bound([info])
     assert end == pytest.approx(3.0) and track == pytest.approx(np.sqrt(5.0))
+
+
+def test_bounds_of_trials_in_two_processes_are_those_of_one(small_mission):
+    """Each trial's bound is the same whichever process computes it."""
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    from geofix.evaluate._pool import worker_start_method
+
+    scen = small_mission("parallel", track=SHORT, trials=3)
+    serial = bounds.scenario_bound_tracks(scen, 3, genie=("_simulator",))
+    with ProcessPoolExecutor(2, mp_context=get_context(worker_start_method())) as pool:
+        parallel = bounds.scenario_bound_tracks(scen, 3, genie=("_simulator",), mapper=pool.map)
+    assert sorted(serial) == sorted(parallel)
+    for key, value in serial.items():
+        np.testing.assert_array_equal(parallel[key], value)

@@ -18,8 +18,9 @@ themselves (``benchmarks/sections/_bounds.py``).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -153,7 +154,9 @@ def bound_tracks(
     return out
 
 
-def scenario_bound_tracks(scenario, trials: int, genie: Iterable[str] = ()) -> dict:
+def scenario_bound_tracks(
+    scenario, trials: int, genie: Iterable[str] = (), mapper: Callable = map
+) -> dict:
     """:func:`bound_tracks` of trials ``0 .. trials-1`` as a campaign simulates them.
 
     Parameters
@@ -164,6 +167,10 @@ def scenario_bound_tracks(scenario, trials: int, genie: Iterable[str] = ()) -> d
         Number of trials.
     genie : iterable of str
         Prior suffixes for which to run the genie too.
+    mapper : callable
+        ``mapper(function, indices)`` computes each trial's terms, in order: the builtin
+        ``map`` (in this process) or a process pool's ``map``. Each trial's terms are the
+        same whichever process computes them.
 
     Returns
     -------
@@ -171,15 +178,21 @@ def scenario_bound_tracks(scenario, trials: int, genie: Iterable[str] = ()) -> d
         ``{name: (trials, n) array}``, m^2.
     """
     from geofix.evaluate._shared_map import campaign_map
-    from geofix.sim.simulate import simulate_trial
 
     grid = campaign_map(scenario)
+    terms = mapper(partial(_trial_bound_tracks, scenario, grid, tuple(genie)), range(trials))
     rows: dict[str, list] = {}
-    for index in range(trials):
-        terms = bound_tracks(simulate_trial(scenario, grid, index), grid, genie)
-        for key, value in terms.items():
+    for each in terms:
+        for key, value in each.items():
             rows.setdefault(key, []).append(value)
     return {key: np.asarray(value, float) for key, value in rows.items()}
+
+
+def _trial_bound_tracks(scenario, grid: Grid, genie: tuple, index: int) -> dict:
+    """:func:`bound_tracks` of one trial, simulated on ``grid``."""
+    from geofix.sim.simulate import simulate_trial
+
+    return bound_tracks(simulate_trial(scenario, grid, index), grid, genie)
 
 
 def valid_bound_terms(trial, grid: Grid) -> tuple[np.ndarray, np.ndarray]:

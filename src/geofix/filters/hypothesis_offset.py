@@ -322,6 +322,21 @@ class HypothesisOffset:
         )
         return replace(self, means=means, log_prob=log_prob - logsumexp(log_prob, axis=0))
 
+    def pooled(self, points, log_weight, width: float) -> HypothesisOffset:
+        """Particle offsets averaged with their neighbours' (:func:`pooled_offsets`)."""
+        if not width > 0:
+            return self
+        means, log_prob = pooled_offsets(
+            points,
+            log_weight,
+            self.means.reshape(self.models, -1),
+            self.log_prob.reshape(self.models, -1),
+            width,
+        )
+        return replace(
+            self, means=means.reshape(self.means.shape), log_prob=log_prob.reshape(self.means.shape)
+        )
+
     def regridded(self, old, new, shape) -> HypothesisOffset:
         """The node offsets moved from grid ``old`` onto ``new`` (:func:`regridded_offsets`)."""
         means = np.stack([regridded_offsets(b, old, new, shape) for b in self.means])
@@ -416,3 +431,78 @@ __all__ = [
     "regridded_offsets",
     "walk_factors",
 ]
+
+
+def _cloud_in_cell(points: np.ndarray, width: float):
+    """Bilinear (cloud-in-cell) weights of each point on a lattice of ``width`` metres.
+
+    Only the lattice nodes some point touches are kept (numbered densely), so a few
+    outlying points do not size a lattice over the whole span.
+
+    Returns
+    -------
+    tuple
+        ``(index (4, M) int, weight (4, M), nodes)``: the number of each of a point's
+        four corner nodes, its bilinear weight there, and the count of nodes.
+    """
+    scaled = (points - points.min(axis=0)) / width
+    base = np.floor(scaled).astype(np.int64)
+    frac = scaled - base
+    stride = int(base[:, 1].max()) + 2
+    keys, weight = [], []
+    for di in (0, 1):
+        for dj in (0, 1):
+            keys.append((base[:, 0] + di) * stride + base[:, 1] + dj)
+            wi = frac[:, 0] if di else 1.0 - frac[:, 0]
+            wj = frac[:, 1] if dj else 1.0 - frac[:, 1]
+            weight.append(wi * wj)
+    nodes, index = np.unique(np.stack(keys), return_inverse=True)
+    return index.reshape(4, -1), np.stack(weight), int(nodes.size)
+
+
+def pooled_offsets(points, log_weight, means, log_prob, width: float):
+    """Each hypothesis's offsets averaged with its neighbours', moment-matched per rate.
+
+    The particle filters' counterpart of the point-mass convolution's
+    :func:`mixed_offsets`: mass ``w_j p_kj`` and mass times offset are spread onto a
+    lattice of ``width`` metres by bilinear weights and read back the same way, so that
+    ``b_ki = sum_j K_ij w_j p_kj b_kj / sum_j K_ij w_j p_kj`` with ``K`` the tent kernel
+    (support two lattice cells per axis). A map error correlated over a cell or more is
+    then estimated by every hypothesis there together, not by each path alone.
+
+    Parameters
+    ----------
+    points : numpy.ndarray
+        ``(M, 2)`` hypotheses, metres.
+    log_weight : numpy.ndarray
+        ``(M,)`` their log-weights.
+    means, log_prob : numpy.ndarray
+        ``(K, M)`` offsets (map units) and rate log-probabilities.
+    width : float
+        Lattice spacing, metres (> 0).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(means, log_prob)`` after pooling, ``(K, M)`` each.
+    """
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    index, weight, cells = _cloud_in_cell(points, width)
+    mass = np.exp(log_weight - np.max(log_weight))[None] * np.exp(log_prob)  # (K, M)
+    out_means, arrived = np.empty_like(means), np.empty_like(means)
+    flat_index = index.ravel()
+    for k in range(means.shape[0]):
+        num = np.bincount(flat_index, (weight * (mass[k] * means[k])).ravel(), cells)
+        den = np.bincount(flat_index, (weight * mass[k]).ravel(), cells)
+        got_num = np.sum(weight * num[index], axis=0)
+        got_den = np.sum(weight * den[index], axis=0)
+        ok = got_den > 1e-300
+        out_means[k] = np.where(ok, got_num / np.where(ok, got_den, 1.0), means[k])
+        arrived[k] = got_den
+    if means.shape[0] == 1:
+        return out_means, log_prob
+    total = arrived.sum(axis=0)
+    ok = total > 1e-300
+    share = np.log(np.maximum(arrived, 1e-300) / np.where(ok, total, 1.0))
+    new_prob = np.where(ok, share, log_prob)
+    return out_means, new_prob - logsumexp(new_prob, axis=0)

@@ -110,7 +110,7 @@ from geofix.filters._weights import (
 from geofix.filters.base import Motion, Observation
 from geofix.filters.hypothesis_offset import HypothesisOffset
 from geofix.filters.motion import InsErrorState
-from geofix.filters.pf import ParticleSettings
+from geofix.filters.pf import ParticleSettings, pooled_offsets_of
 from geofix.maps.grid import Grid
 from geofix.measurement import predict_measurements
 from geofix.memory import cells_bytes, check_allocation
@@ -317,6 +317,7 @@ class Mpf(ParticleSettings):
         """
         if effective_sample_size(state.weights) < self.resample_threshold * state.dp.shape[0]:
             state = self._resample(state, rng)
+            state = pooled_offsets_of(state, state.positions, self.offset_pool * state.spacing)
         if state.offset is not None:
             state = replace(state, offset=state.offset.predicted(motion.dt))
         if state.field_offsets:
@@ -511,7 +512,8 @@ class Mpf(ParticleSettings):
         joint = joint[index]
         linear_cov = state.cov
         spacing = float(np.sqrt(area / count))
-        if self.regularise and not near_gaussian(state.dp, w):
+        pooled_paths = self.offset_pool > 0 and _path_offsets(state)
+        if self.regularise and (pooled_paths or not near_gaussian(state.dp, w)):
             joint = _roughen(joint, cov, spacing, rng)
         elif self.regularise:
             joint, linear_cov = self._move(joint, mean, cov, linear_cov, rng)
@@ -527,6 +529,15 @@ class Mpf(ParticleSettings):
             offset=None if state.offset is None else state.offset.take(index),
             field_offsets=taken_offsets(state.field_offsets, index),
         )
+
+
+def _path_offsets(state: MpfState) -> bool:
+    """The particles carry offsets learnt along their own paths (single-beam pings).
+
+    The kernel move would carry a copy about half the set's spread from the path its
+    offset was learnt on; jitter within the share keeps it there.
+    """
+    return state.offset is not None or any(o is not None for o in state.field_offsets)
 
 
 def _points(state: MpfState) -> np.ndarray:

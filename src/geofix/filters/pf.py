@@ -209,6 +209,15 @@ class ParticleSettings(RecursiveFilter):
         The common offset's walk, map units squared per second, as
         :class:`geofix.filters.pmf.Pmf`'s: 0 an offset that does not move, None (the
         default) the navigator's ``depth_bias_walk`` (1e-3).
+    offset_pool : float
+        Width, in particle spacings (the typical distance between neighbours after a
+        resampling), over which each resampled particle's per-path offset is averaged
+        with its neighbours' (weighted by a tent kernel, :func:`~geofix.filters.
+        hypothesis_offset.pooled_offsets`), as the point-mass convolution mixes its
+        nodes'; ``mpf`` then jitters its copies within their share instead of the kernel
+        move. 0 (the default) leaves each particle its own path's offset. A map error
+        correlated over more than a swath reads, along one path, as an offset that
+        follows a misleading stretch of map; pooled, the neighbours' paths temper it.
     """
 
     name: ClassVar[str] = "particles"
@@ -228,8 +237,11 @@ class ParticleSettings(RecursiveFilter):
     map_model: str = "imperfect"
     fast_offset_walk: float | None = None
     offset_walk: float | None = None
+    offset_pool: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.offset_pool) and self.offset_pool >= 0):
+            raise ConfigError(f"{self.name}: offset_pool must be finite and >= 0")
         if self.fast_offset_walk is not None:
             walk_factors(self.fast_offset_walk)
         check_offset_walk(self.name, self.offset_walk)
@@ -428,6 +440,7 @@ class Pf(ParticleSettings):
         count = state.particles.shape[0]
         if effective_sample_size(state.weights) < self.resample_threshold * count:
             state = self._resample(state, rng)
+            state = pooled_offsets_of(state, _points(state), self.offset_pool * state.spacing)
         if state.offset is not None:
             state = replace(state, offset=state.offset.predicted(motion.dt))
         if state.field_offsets:
@@ -569,6 +582,21 @@ class Pf(ParticleSettings):
             offset=None if state.offset is None else state.offset.take(index),
             field_offsets=taken_offsets(state.field_offsets, index),
         )
+
+
+def pooled_offsets_of(state, points: np.ndarray, width: float):
+    """``state`` with its offsets pooled over ``width`` metres (0: unchanged)."""
+    if width <= 0 or (state.offset is None and not any(state.field_offsets)):
+        return state
+
+    def pool(offset):
+        return None if offset is None else offset.pooled(points, state.log_weight, width)
+
+    return replace(
+        state,
+        offset=pool(state.offset),
+        field_offsets=tuple(pool(o) for o in state.field_offsets),
+    )
 
 
 def _prior_on_map(problem: MatchProblem, particles: np.ndarray) -> None:
