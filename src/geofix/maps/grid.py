@@ -130,9 +130,7 @@ class Grid:
         MapError
             ``std`` is not a number at least 0.
         """
-        stated = replace(self, meta={**self.meta, "offset_std": std})
-        _ = stated.stated_offset_std  # refuses a value that is not a number >= 0
-        return stated
+        return self._stating("offset_std", std)
 
     def with_registration(self, std_m: float) -> Grid:
         """The map stating that it is registered to ``std_m`` metres (1-sigma per axis).
@@ -142,8 +140,12 @@ class Grid:
         MapError
             ``std_m`` is not a number at least 0.
         """
-        stated = replace(self, meta={**self.meta, "registration_std_m": std_m})
-        _ = stated.registration_var  # refuses a value that is not a number >= 0
+        return self._stating("registration_std_m", std_m)
+
+    def _stating(self, key: str, std: float) -> Grid:
+        """The map with ``meta[key] = std``, refused (MapError) unless a number >= 0."""
+        stated = replace(self, meta={**self.meta, key: std})
+        stated._stated_std(key)
         return stated
 
     @property
