@@ -114,10 +114,10 @@ def test_mpf_pooling_keeps_each_copy_on_the_path_its_offset_was_learnt_on():
         assert (np.quantile(moved, 0.99) <= bound) == near, (spec, np.quantile(moved, 0.99), bound)
 
 
-@pytest.mark.parametrize("spec", ["pf:offset_pool=2", "mpf:offset_pool=2"])
+@pytest.mark.parametrize("spec", ["pf", "mpf:offset_pool=2"])
 def test_pooled_offsets_hold_the_covariance_on_a_held_out_real_track(spec):
-    """EW0112, 24-36 h, seed 1006, against ETOPO1 at 10': default pf claimed 15 pings
-    converged beyond 3 sigma there (largest NEES 26); pooled, none."""
+    """EW0112, 24-36 h, seed 1006, against ETOPO1 at 10': unpooled, pf claimed 15 pings
+    converged beyond 3 sigma there (largest NEES 26); pooled (pf's default), none."""
     from geofix.logs.mgd77 import field_segments, pick_segment
     from geofix.maps import load_grid
     from geofix.replay import nees, replay, window_mission

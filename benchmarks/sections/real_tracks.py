@@ -20,9 +20,16 @@ WINDOWS = ((0.0, 24.0), (24.0, 12.0))
 QUICK = {"ew0112": ((0.0, 6.0),)}
 """The ``--quick`` run: one 6 h segment."""
 METHODS = ("pmf", "mpf", "pf")
-#: Settings run beside the defaults on the held-out seeds: per-path offsets pooled with
-#: the neighbours' at each resampling (``offset_pool``, in particle spacings).
-POOLED = ("pf:offset_pool=2", "mpf:offset_pool=2")
+#: Settings run beside the defaults on the held-out seeds: ``pf`` without its per-path
+#: offsets pooled at each resampling (``offset_pool``, in particle spacings; 2 by default),
+#: ``mpf`` with them (0 by default).
+POOLED = ("pf:offset_pool=0", "mpf:offset_pool=2")
+#: What each of :data:`POOLED` is, for the tables' prose.
+POOLED_WHAT = (
+    "each resampled particle keeps its own path's offset",
+    "each copy's offset averaged with its neighbours' within two particle spacings, as "
+    "`pf` does by default",
+)
 SEED = 1
 """Seed of the first segment; segment ``k`` (in table order) uses ``SEED + k`` (the
 filters' generators; the default INS has no random term)."""
@@ -238,11 +245,13 @@ def _held_out_part(held: list[dict]) -> str:
         f"{len(HELD_OUT_SEEDS)} further seeds of the filters "
         f"({HELD_OUT_SEEDS[0]}–{HELD_OUT_SEEDS[-1]}), never run while the defaults were "
         f"chosen ({len(held)} runs per method), the defaults and beside them "
-        f"{' and '.join(f'`{m}`' for m in POOLED)} (each resampled particle's offset "
-        "averaged with its neighbours' within two particle spacings):\n\n"
-        + _runs_table(held, METHODS + POOLED)
-        + "\n"
+        f"{pooled_settings()}:\n\n" + _runs_table(held, METHODS + POOLED) + "\n"
     )
+
+
+def pooled_settings() -> str:
+    """The settings of :data:`POOLED`, each with what it does (Markdown)."""
+    return " and ".join(f"`{m}` ({what})" for m, what in zip(POOLED, POOLED_WHAT, strict=True))
 
 
 def _first_runs(segments: list[Segment]) -> list[dict]:

@@ -24,6 +24,7 @@ from sections.real_tracks import (
     _ins_stats,
     _method_stats,
     _runs_table,
+    pooled_settings,
 )
 
 TITLE = "Real ship tracks, gravity — the ships' anomaly against EIGEN-6C4, alone and with depth"
@@ -288,8 +289,7 @@ def build(quick: bool) -> str:
         text += (
             f"{_label(fields)}, every segment at {seeds} seed{'s' if seeds > 1 else ''} "
             f"({len(done)} runs per method; beside the defaults "
-            f"{' and '.join(f'`{m}`' for m in POOLED)}, per-path offsets pooled at each "
-            "resampling as in the depth section's held-out runs):\n\n"
+            f"{pooled_settings()}, as in the depth section's held-out runs):\n\n"
             + _runs_table([s for _, s in done], METHODS + POOLED)
             + "\n"
         )

@@ -215,7 +215,8 @@ class ParticleSettings(RecursiveFilter):
         with its neighbours' (weighted by a tent kernel, :func:`~geofix.filters.
         hypothesis_offset.pooled_offsets`), as the point-mass convolution mixes its
         nodes'; ``mpf`` then jitters its copies within their share instead of the kernel
-        move. 0 (the default) leaves each particle its own path's offset. A map error
+        move. 0 leaves each particle its own path's offset (``mpf``'s default; ``pf``'s
+        is 2, see :class:`Pf`). A map error
         correlated over more than a swath reads, along one path, as an offset that
         follows a misleading stretch of map; pooled, the neighbours' paths temper it.
     """
@@ -345,6 +346,11 @@ class Pf(ParticleSettings):
         filter beside the particles: :mod:`geofix.filters.particle_motion`).
     use_dvl : bool
         Fold in an aiding DVL's velocity when the problem has one (error state only).
+    offset_pool : float
+        As :class:`ParticleSettings`'s, 2 particle spacings by default: held out on real
+        ship tracks against ETOPO1 at 10', the unpooled filter claimed ``converged`` with
+        its error beyond 3 sigma on 24 of 2043 pings, pooled on none (``pf:offset_pool=0``
+        is the unpooled filter).
 
     References
     ----------
@@ -364,6 +370,7 @@ class Pf(ParticleSettings):
     roughening: float = 0.2
     model: str = "auto"
     use_dvl: bool = True
+    offset_pool: float = 2.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
