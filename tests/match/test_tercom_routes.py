@@ -46,6 +46,8 @@ def brute_force(problem, ox, oy, metric, min_valid_fraction=0.9):
                 out[j, k] = np.mean(np.abs(d))
             elif metric == "cor":
                 out[j, k] = -np.mean(h[ok] * m[ok])
+            elif metric == "cmsd":
+                out[j, k] = np.mean((d - d.mean()) ** 2)
             else:
                 hc = h[ok] - h.mean()
                 mc = m[ok] - m[ok].mean()
@@ -101,7 +103,7 @@ def case():
     return problem, ox, oy
 
 
-@pytest.mark.parametrize("metric", ["msd", "mad", "cor", "ncor"])
+@pytest.mark.parametrize("metric", ["msd", "mad", "cor", "ncor", "cmsd"])
 @pytest.mark.parametrize("route", ["loop", "direct", "auto"])
 def test_every_route_equals_brute_force(case, metric, route):
     problem, ox, oy = case
@@ -109,7 +111,7 @@ def test_every_route_equals_brute_force(case, metric, route):
     _assert_surface(got, brute_force(problem, ox, oy, metric))
 
 
-@pytest.mark.parametrize("metric", ["msd", "cor", "ncor"])
+@pytest.mark.parametrize("metric", ["msd", "cor", "ncor", "cmsd"])
 def test_fft_route_equals_brute_force(case, metric):
     problem, ox, oy = case
     got = tercom_cost_surface(problem, ox, oy, metric, route="fft")
@@ -122,7 +124,7 @@ def test_mad_has_no_fft_route(case):
         tercom_cost_surface(problem, ox, oy, "mad", route="fft")
 
 
-@pytest.mark.parametrize("metric", ["msd", "ncor"])
+@pytest.mark.parametrize("metric", ["msd", "ncor", "cmsd"])
 def test_loop_handles_no_data_cells_and_the_map_edge(metric):
     rng = np.random.default_rng(8)
     grid = _grid(rng, shape=(60, 70), nan_cells=[(30, 30), (31, 41), (12, 50)])
@@ -209,14 +211,14 @@ def _numpy_integrity(matcher, problem, surface, ox, oy):
     return cov, bool(w[far].sum() > matcher.ambiguity_mass)
 
 
-@pytest.mark.parametrize("metric", ["msd", "mad", "ncor"])
+@pytest.mark.parametrize("metric", ["msd", "mad", "ncor", "cmsd"])
 def test_integrity_equals_the_numpy_pseudo_likelihood(metric):
     rng = np.random.default_rng(9)
     problem = _problem(_grid(rng), rng, n=6, beams=1, noise=2.0)  # a broad likelihood
     matcher = Tercom(metric=metric, window_m=12 * 10.0, exclusion_cells=1.0)
     fix = matcher.match(problem)
     ox, oy = matcher.candidate_offsets(problem)
-    kind = "mad" if metric == "mad" else "msd"
+    kind = {"mad": "mad", "cmsd": "cmsd"}.get(metric, "msd")  # cor/ncor: judged by msd
     cov, ambiguous = _numpy_integrity(matcher, problem, brute_force(problem, ox, oy, kind), ox, oy)
     np.testing.assert_allclose(fix.covariance, cov, rtol=1e-9)
     assert np.linalg.eigvalsh(cov)[-1] > 1.5 * 100.0 / 12  # more than the cell quantisation

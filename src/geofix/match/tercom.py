@@ -10,10 +10,13 @@ Scores, over the ``L`` valid samples (all beams of all points):
 - ``mad`` -- mean absolute difference (minimised),
 - ``cor`` -- mean product ``h_r * h_m`` (maximised; stored as its negative),
 - ``ncor`` -- normalised cross-correlation (maximised; an extension, insensitive to a
-  constant field offset such as a tide or gravimeter bias).
+  constant field offset such as a tide or gravimeter bias, and to the field's scale),
+- ``cmsd`` -- centred mean squared difference, the ``msd`` of the differences less their
+  mean (minimised; an extension: the best constant offset between the measurements and
+  the map is removed at each candidate, the field's scale kept).
 
-Integrity: the cost surface is turned into a pseudo-likelihood (Gaussian for ``msd``,
-Laplace for ``mad``, with the sensor noise as scale) whose mass-weighted spread is the
+Integrity: the cost surface is turned into a pseudo-likelihood (Gaussian for ``msd`` and
+``cmsd``, Laplace for ``mad``, with the sensor noise as scale) whose mass-weighted spread is the
 fix covariance; the fix is *ambiguous* when more than ``ambiguity_mass`` of that mass lies
 farther than ``exclusion_cells`` from the best candidate (a second minimum nearly as good
 as the first, far from it). For ``cor``/``ncor``, whose values are no distances, the
@@ -30,7 +33,7 @@ Computation (:func:`tercom_cost_surface`, all routes give the same surface to ro
 with whole-cell candidate spacing the ``loop`` route keeps each sample's four bilinear
 weights fixed and sweeps contiguous map rows (``msd``/``mad`` with branch-and-bound on
 samples ordered by map gradient), the ``fft`` route correlates the map with sparse
-kernels built from the track (``msd``, ``cor``, ``ncor``; not ``mad``); any other spacing
+kernels built from the track (``msd``, ``cor``, ``ncor``, ``cmsd``; not ``mad``); any other spacing
 takes the ``direct`` route. ``route="auto"`` picks the cheaper of the first two by a cost
 model of reads against transform sizes.
 """
@@ -47,7 +50,7 @@ from geofix._threads import pick, twins
 from geofix.errors import ConfigError, MatchError
 from geofix.maps import mapread
 from geofix.maps.mapread import bilinear_at
-from geofix.match._tercom_fft import SUPPORTED, fft_cost, fft_window
+from geofix.match._tercom_fft import SUPPORTED, centred_msd, fft_cost, fft_window
 from geofix.match._tercom_integrity import surface_moments
 from geofix.match._tercom_loop import (
     MODES,
@@ -62,7 +65,7 @@ from geofix.match.integrity import terrain_snr
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import Fix, MatchProblem
 
-_METRICS = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3}
+_METRICS = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3, "cmsd": 4}
 # Float arrays of the cost surface's size alive at once: two surfaces (cor/ncor score
 # again with msd), the pseudo-likelihood, offset grids, distances and products.
 _SURFACE_COPIES = 12
@@ -75,7 +78,9 @@ class Tercom:
     Parameters
     ----------
     metric : str
-        ``"msd"`` (default), ``"mad"``, ``"cor"`` or ``"ncor"``.
+        ``"msd"`` (default), ``"mad"``, ``"cor"``, ``"ncor"`` or ``"cmsd"``. ``cmsd`` is
+        ``msd`` with the mean difference removed at each candidate: a constant offset of
+        the field (a tide, a gravimeter's bias) does not move the fix.
     window_sigma : float
         Half-side of the square search window in prior sigmas (the INS position 1-sigma at
         the last sample): 3 gives the 6-sigma window of source 001.
@@ -257,7 +262,7 @@ ROUTES = ("auto", "loop", "fft", "direct")
 # and log2 of the transform size.
 _LOOP_S_PER_READ = 0.5e-9
 _FFT_S_PER_POINT_LOG = 1.0e-9
-_FFT_TRANSFORMS = {"msd": 13, "cor": 3, "ncor": 15}
+_FFT_TRANSFORMS = {"msd": 13, "cor": 3, "ncor": 15, "cmsd": 15}
 
 
 @dataclass(frozen=True)
@@ -302,7 +307,8 @@ def tercom_cost_surface(
         Candidate translations along x (east) and y (north), metres, increasing and
         evenly spaced.
     metric : str
-        ``"msd"``, ``"mad"``, ``"cor"`` or ``"ncor"``; maximised metrics are negated.
+        ``"msd"``, ``"mad"``, ``"cor"``, ``"ncor"`` or ``"cmsd"``; maximised metrics are
+        negated.
     min_valid_fraction : float
         Candidates with fewer valid map look-ups than this share are set to NaN.
     route : str
@@ -369,7 +375,7 @@ def _fft_is_faster(samples, kc, kr, window, metric) -> bool:
 def _loop(values, samples, kc, kr, metric, min_valid_fraction, prune_margin) -> np.ndarray:
     mode = MODES[metric]
     n = samples.h.size
-    h = samples.h - samples.h.mean() if metric == "ncor" else samples.h
+    h = samples.h - samples.h.mean() if metric in ("ncor", "cmsd") else samples.h
     prune = None
     if prune_margin is not None and metric in ("msd", "mad"):
         order = _information_order(values, samples)
@@ -413,11 +419,19 @@ def _finish(sums, count, n, mode, min_valid_fraction) -> np.ndarray:
             cost = sums[0] / valid
         elif mode == 2:
             cost = -sums[0] / valid
-        else:
+        elif mode == 3:
             s_m, s_mm, s_hm, s_h, s_hh = sums
             var_m = s_mm - s_m * s_m / valid
             denom = np.sqrt(np.maximum(var_m, 1e-300) * np.maximum(s_hh, 1e-300))
             cost = -(s_hm - s_h * s_m / valid) / denom
+        else:
+            s_m, s_mm, s_hm, s_h, s_hh = sums
+            cost = centred_msd(
+                s_hh - s_h * s_h / valid,
+                s_hm - s_h * s_m / valid,
+                s_mm - s_m * s_m / valid,
+                valid,
+            )
     cost[bad] = np.nan
     return cost
 
@@ -474,6 +488,15 @@ def _cost_kernel(values, col, row, h, ocol, orow, metric, min_valid_fraction):  
                 var_m = s_mm - s_m * s_m / valid
                 denom = np.sqrt(max(var_m, 1e-300) * max(s_hh, 1e-300))
                 out[j, k] = -(s_hm - s_h * s_m / valid) / denom
+            elif metric == 4:
+                spread = (
+                    s_hh
+                    - s_h * s_h / valid
+                    - 2.0 * (s_hm - s_h * s_m / valid)
+                    + s_mm
+                    - s_m * s_m / valid
+                )
+                out[j, k] = max(spread, 0.0) / valid
             else:
                 out[j, k] = acc / valid
     return out
