@@ -19,7 +19,11 @@ Integrity: the cost surface is turned into a pseudo-likelihood (Gaussian for ``m
 ``cmsd``, Laplace for ``mad``, with the sensor noise as scale) whose mass-weighted spread is the
 fix covariance; the fix is *ambiguous* when more than ``ambiguity_mass`` of that mass lies
 farther than ``exclusion_cells`` from the best candidate (a second minimum nearly as good
-as the first, far from it). For ``cor``/``ncor``, whose values are no distances, the
+as the first, far from it). The samples count as many as the residuals at the fix show
+independent (``L`` over their design effect, :func:`~geofix.match.integrity.
+residual_design_effect`: a map error shared by a swath's beams or persisting along the
+track), so a correlated map error widens the covariance instead of making a confident
+wrong fix. For ``cor``/``ncor``, whose values are no distances, the
 integrity check scores the same window once more with ``msd``. The INS drift inside the
 window, which one rigid offset cannot follow, is added to that covariance
 (:func:`geofix.match.drift.with_leg_drift`: the error of the last sample against the
@@ -61,7 +65,8 @@ from geofix.match._tercom_loop import (
     whole_cell_shifts,
 )
 from geofix.match.drift import with_leg_drift
-from geofix.match.integrity import terrain_snr
+from geofix.match.integrity import residual_design_effect, terrain_snr
+from geofix.measurement import predict_track
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import Fix, MatchProblem
 
@@ -104,6 +109,15 @@ class Tercom:
         ``"all"`` matches every beam of a multibeam swath; ``"nadir"`` only the depth
         profile under the track (the beam nearest nadir), the classic line TERCOM.
 
+    correlated_residuals : bool
+        Count the samples of the pseudo-likelihood as the residuals at the fix show them:
+        ``L`` divided by their design effect (:func:`~geofix.match.integrity.
+        residual_design_effect`: a map error shared by a swath's beams or persisting
+        along the track makes fewer independent samples than values), so the covariance
+        and the ambiguity test widen where the residuals are correlated; the fix is
+        unchanged (default True; False counts every value as independent). Where the
+        design effect is large enough that the branch-and-bound's pruned candidates could
+        carry weight, the window is scored again without it.
     route : str
         How the cost surface is computed (:func:`tercom_cost_surface`): ``"auto"`` (the
         faster of ``"loop"`` and ``"fft"`` where they apply, else ``"direct"``) or one of
@@ -140,6 +154,7 @@ class Tercom:
     ambiguity_mass: float = 0.05
     min_terrain_snr: float = 1.0
     beams: str = "all"
+    correlated_residuals: bool = True
     route: str = "auto"
 
     def __post_init__(self) -> None:
@@ -167,13 +182,15 @@ class Tercom:
             raise MatchError("tercom: no candidate in the search window lies on valid map data")
         j, k = np.unravel_index(np.nanargmin(cost), cost.shape)
         offset = np.array([ox[k], oy[j]])
-        surface = cost
-        if self.metric in ("cor", "ncor"):
-            surface = _surface(problem, ox, oy, "msd", self.min_valid_fraction, self.route, margin)[
-                0
-            ]
-        own, ambiguous = self._integrity(problem, surface, ox, oy, (j, k))
         track = problem.indicated + offset
+        effect = self._design_effect(problem, track)
+        if self.metric in ("cor", "ncor"):
+            surface = self._rescored(problem, ox, oy, "msd", margin, effect)
+        elif route == "loop" and margin is not None and not pruning_holds(effect, cost.size):
+            surface = self._rescored(problem, ox, oy, self.metric, None, effect)
+        else:
+            surface = cost
+        own, ambiguous = self._integrity(problem, surface, ox, oy, (j, k), effect)
         snr = terrain_snr(problem, track)
         covariance, drift = with_leg_drift(problem, own, track)
         return Fix(
@@ -188,8 +205,26 @@ class Tercom:
                 "terrain_snr": snr,
                 "route": route,
                 "drift_covariance": drift,
+                "design_effect": effect,
             },
         )
+
+    def _rescored(self, problem, ox, oy, metric, margin, effect) -> np.ndarray:
+        """The window scored again with ``metric`` for the integrity analysis.
+
+        Pruned with ``margin`` only while the pruned weights stay negligible at the
+        residuals' design effect (:func:`pruning_holds`).
+        """
+        if not pruning_holds(effect, ox.size * oy.size):
+            margin = None
+        return _surface(problem, ox, oy, metric, self.min_valid_fraction, self.route, margin)[0]
+
+    def _design_effect(self, problem: MatchProblem, track: np.ndarray) -> float:
+        """The residuals' design effect at the fix (1 unless ``correlated_residuals``)."""
+        if not self.correlated_residuals:
+            return 1.0
+        mapped = predict_track(problem.grid, track, problem.heading, problem.offsets)
+        return residual_design_effect(problem.measured - mapped)
 
     def candidate_offsets(self, problem: MatchProblem) -> tuple[np.ndarray, np.ndarray]:
         """Candidate translations along x and y (metres), a separable square window."""
@@ -227,16 +262,17 @@ class Tercom:
         kind = "mad" if self.metric == "mad" else "msd"
         return lambda best: UNDERFLOW_LOG * _likelihood_scale(kind, problem, best) / samples
 
-    def _integrity(self, problem, msd, ox, oy, best) -> tuple[np.ndarray, bool]:
+    def _integrity(self, problem, msd, ox, oy, best, effect=1.0) -> tuple[np.ndarray, bool]:
         """Covariance of the offset and the ambiguity flag from an msd/mad surface.
 
         The pseudo-likelihood ``exp(-L (cost - min) / scale)`` (Gaussian scale for
-        ``msd``, Laplace for ``mad``) is normalised over the window; its weighted spread
-        plus the cell's quantisation variance is the covariance, its mass beyond
-        ``exclusion_cells`` from the best candidate the ambiguity test.
+        ``msd``, Laplace for ``mad``; ``L`` the valid samples over ``effect``, their
+        design effect) is normalised over the window; its weighted spread plus the cell's
+        quantisation variance is the covariance, its mass beyond ``exclusion_cells`` from
+        the best candidate the ambiguity test.
         """
         kind = "mad" if self.metric == "mad" else "msd"
-        samples = int(np.isfinite(problem.measured).sum())
+        samples = int(np.isfinite(problem.measured).sum()) / effect
         low = float(np.nanmin(msd))
         factor = samples / _likelihood_scale(kind, problem, low)
         cell = problem.grid.cell_size
@@ -256,6 +292,22 @@ class Tercom:
 
 
 ROUTES = ("auto", "loop", "fft", "direct")
+
+#: The pruned candidates' total weight against the best's, at most (:func:`pruning_holds`).
+PRUNED_MASS = 1e-12
+
+
+def pruning_holds(effect: float, candidates: int) -> bool:
+    """Whether a surface pruned for independent samples serves a design effect.
+
+    Branch-and-bound drops a candidate whose weight with all ``L`` samples independent
+    is ``exp(-746)`` or less (:data:`~geofix.match._tercom_loop.UNDERFLOW_LOG`); counted
+    as ``L / effect`` samples its weight is at most ``exp(-746 / effect)``. The pruning
+    holds while ``candidates`` such weights sum to at most :data:`PRUNED_MASS` of the
+    best's.
+    """
+    return candidates * np.exp(-UNDERFLOW_LOG / max(effect, 1.0)) <= PRUNED_MASS
+
 
 # Rough per-operation costs on one core (seconds), measured by benchmarks/bench_tercom.py,
 # used only to pick a route: the loop per sample x candidate, the FFT per transform point
