@@ -185,7 +185,7 @@ def setting_descriptions(cls: type) -> dict[str, str]:
     --------
     >>> import geofix
     >>> setting_descriptions(geofix.Tercom)["metric"]
-    '"msd" (default), "mad", "cor" or "ncor".'
+    '"msd" (default), "mad", "cor", "ncor" or "cmsd".'
     """
     documented: dict[str, str] = {}
     for klass in reversed(cls.__mro__):

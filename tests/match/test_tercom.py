@@ -1,5 +1,7 @@
 """TERCOM: exact recovery on a noiseless map, metrics, integrity, errors."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -49,7 +51,7 @@ def _line(start, heading, step, n):
     return np.asarray(start) + t * np.array([np.sin(heading), np.cos(heading)])
 
 
-@pytest.mark.parametrize("metric", ["msd", "mad", "ncor"])
+@pytest.mark.parametrize("metric", ["msd", "mad", "ncor", "cmsd"])
 def test_finds_known_offset_exactly_on_noiseless_map(metric):
     rng = np.random.default_rng(1)
     grid = _rough_grid(rng)
@@ -58,6 +60,24 @@ def test_finds_known_offset_exactly_on_noiseless_map(metric):
     fix = Tercom(metric=metric).match(_problem(grid, truth, offset), rng)
     np.testing.assert_allclose(fix.track, truth, atol=1e-9)
     assert not fix.ambiguous
+
+
+def test_cmsd_fix_and_covariance_ignore_a_constant_field_offset():
+    """A tide or gravimeter bias added to every reading: cmsd's fix, covariance and cost
+    are those without it, while msd's fix moves."""
+    rng = np.random.default_rng(4)
+    grid = _rough_grid(rng)
+    truth = _line((700.0, 600.0), 0.3, 25.0, 30)
+    problem = _problem(grid, truth, np.array([-40.0, 70.0]))
+    biased = dataclasses.replace(problem, measured=problem.measured + 6.0)
+    plain = Tercom(metric="cmsd").match(problem, rng)
+    shifted = Tercom(metric="cmsd").match(biased, rng)
+    np.testing.assert_allclose(shifted.track, plain.track, atol=1e-9)
+    np.testing.assert_allclose(shifted.covariance, plain.covariance, rtol=1e-6)
+    assert shifted.cost == pytest.approx(plain.cost, abs=1e-9)
+    np.testing.assert_allclose(plain.track, truth, atol=1e-9)
+    moved = Tercom(metric="msd").match(biased, rng)
+    assert np.hypot(*(moved.track[-1] - truth[-1])) > grid.cell_size
 
 
 def test_cor_cost_is_the_negated_mean_product():

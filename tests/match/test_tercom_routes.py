@@ -1,11 +1,13 @@
 """TERCOM cost-surface routes (loop, FFT, direct, branch-and-bound) against brute force."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from geofix.errors import ConfigError
 from geofix.maps.grid import Grid
-from geofix.match.tercom import Tercom, tercom_cost_surface
+from geofix.match.tercom import Tercom, pruning_holds, tercom_cost_surface
 from geofix.problem import MatchProblem, footprint_xy
 
 RTOL = 1e-9
@@ -46,6 +48,8 @@ def brute_force(problem, ox, oy, metric, min_valid_fraction=0.9):
                 out[j, k] = np.mean(np.abs(d))
             elif metric == "cor":
                 out[j, k] = -np.mean(h[ok] * m[ok])
+            elif metric == "cmsd":
+                out[j, k] = np.mean((d - d.mean()) ** 2)
             else:
                 hc = h[ok] - h.mean()
                 mc = m[ok] - m[ok].mean()
@@ -101,7 +105,7 @@ def case():
     return problem, ox, oy
 
 
-@pytest.mark.parametrize("metric", ["msd", "mad", "cor", "ncor"])
+@pytest.mark.parametrize("metric", ["msd", "mad", "cor", "ncor", "cmsd"])
 @pytest.mark.parametrize("route", ["loop", "direct", "auto"])
 def test_every_route_equals_brute_force(case, metric, route):
     problem, ox, oy = case
@@ -109,7 +113,7 @@ def test_every_route_equals_brute_force(case, metric, route):
     _assert_surface(got, brute_force(problem, ox, oy, metric))
 
 
-@pytest.mark.parametrize("metric", ["msd", "cor", "ncor"])
+@pytest.mark.parametrize("metric", ["msd", "cor", "ncor", "cmsd"])
 def test_fft_route_equals_brute_force(case, metric):
     problem, ox, oy = case
     got = tercom_cost_surface(problem, ox, oy, metric, route="fft")
@@ -122,7 +126,7 @@ def test_mad_has_no_fft_route(case):
         tercom_cost_surface(problem, ox, oy, "mad", route="fft")
 
 
-@pytest.mark.parametrize("metric", ["msd", "ncor"])
+@pytest.mark.parametrize("metric", ["msd", "ncor", "cmsd"])
 def test_loop_handles_no_data_cells_and_the_map_edge(metric):
     rng = np.random.default_rng(8)
     grid = _grid(rng, shape=(60, 70), nan_cells=[(30, 30), (31, 41), (12, 50)])
@@ -185,9 +189,9 @@ def test_unknown_route_is_a_config_error(case):
         tercom_cost_surface(problem, ox, oy, route="gpu")
 
 
-def _numpy_integrity(matcher, problem, surface, ox, oy):
+def _numpy_integrity(matcher, problem, surface, ox, oy, effect=1.0):
     """The pseudo-likelihood covariance and ambiguity in plain numpy (reference)."""
-    samples = int(np.isfinite(problem.measured).sum())
+    samples = int(np.isfinite(problem.measured).sum()) / effect
     best = float(np.nanmin(surface))
     if matcher.metric == "mad":
         scale = max(problem.noise_std / np.sqrt(2.0), best, 1e-12)
@@ -209,16 +213,41 @@ def _numpy_integrity(matcher, problem, surface, ox, oy):
     return cov, bool(w[far].sum() > matcher.ambiguity_mass)
 
 
-@pytest.mark.parametrize("metric", ["msd", "mad", "ncor"])
+@pytest.mark.parametrize("metric", ["msd", "mad", "ncor", "cmsd"])
 def test_integrity_equals_the_numpy_pseudo_likelihood(metric):
     rng = np.random.default_rng(9)
     problem = _problem(_grid(rng), rng, n=6, beams=1, noise=2.0)  # a broad likelihood
     matcher = Tercom(metric=metric, window_m=12 * 10.0, exclusion_cells=1.0)
     fix = matcher.match(problem)
     ox, oy = matcher.candidate_offsets(problem)
-    kind = "mad" if metric == "mad" else "msd"
-    cov, ambiguous = _numpy_integrity(matcher, problem, brute_force(problem, ox, oy, kind), ox, oy)
+    kind = {"mad": "mad", "cmsd": "cmsd"}.get(metric, "msd")  # cor/ncor: judged by msd
+    surface = brute_force(problem, ox, oy, kind)
+    effect = fix.diagnostics["design_effect"]
+    cov, ambiguous = _numpy_integrity(matcher, problem, surface, ox, oy, effect)
     np.testing.assert_allclose(fix.covariance, cov, rtol=1e-9)
     assert np.linalg.eigvalsh(cov)[-1] > 1.5 * 100.0 / 12  # more than the cell quantisation
     flat = fix.diagnostics["terrain_snr"] < matcher.min_terrain_snr
     assert fix.ambiguous == (ambiguous or flat)
+
+
+@pytest.mark.parametrize("metric", ["msd", "mad"])
+def test_a_large_design_effect_scores_the_pruned_candidates_again(metric):
+    """Readings with an error persisting along the track: counted as fewer samples, the
+    candidates branch-and-bound dropped could carry weight, so the loop route scores
+    them all again and the integrity is the brute-force surface's."""
+    rng = np.random.default_rng(11)
+    problem = _problem(_grid(rng), rng, n=40, beams=5, noise=0.5)
+    drift = np.cumsum(rng.normal(0.0, 1.0, problem.measured.shape[0]))
+    problem = dataclasses.replace(problem, measured=problem.measured + drift[:, None])
+    matcher = Tercom(metric=metric, window_m=25 * 10.0, route="loop")
+    fix = matcher.match(problem)
+    effect = fix.diagnostics["design_effect"]
+    ox, oy = matcher.candidate_offsets(problem)
+    assert not pruning_holds(effect, ox.size * oy.size)  # the case the test is about
+    surface = brute_force(problem, ox, oy, metric)
+    cov, _ = _numpy_integrity(matcher, problem, surface, ox, oy, effect)
+    np.testing.assert_allclose(fix.covariance, cov, rtol=1e-9)
+    independent = Tercom(metric=metric, window_m=25 * 10.0, correlated_residuals=False)
+    narrow = independent.match(problem)
+    np.testing.assert_allclose(narrow.track, fix.track)
+    assert np.trace(fix.covariance) > 2.0 * np.trace(narrow.covariance)

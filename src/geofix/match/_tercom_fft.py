@@ -45,7 +45,7 @@ _PAIRS = (  # (weight a, weight b, delta index, corner of the kernel entry)
     (0, 3, 3, (0, 0)),
     (1, 2, 4, (0, 1)),
 )
-SUPPORTED = ("msd", "cor", "ncor")
+SUPPORTED = ("msd", "cor", "ncor", "cmsd")
 
 
 def fft_window(shape, col, row, kc, kr):
@@ -89,7 +89,7 @@ def fft_cost(values, window, h, kc, kr, metric: str, workers: int = 1) -> np.nda
     kc, kr : numpy.ndarray
         Increasing, evenly spaced int64 whole-cell shifts.
     metric : str
-        ``"msd"``, ``"cor"`` or ``"ncor"``.
+        ``"msd"``, ``"cor"``, ``"ncor"`` or ``"cmsd"``.
     workers : int
         Threads for ``scipy.fft``.
     """
@@ -128,11 +128,13 @@ def fft_cost(values, window, h, kc, kr, metric: str, workers: int = 1) -> np.nda
     if metric == "msd":
         cross = corr(fwin * kernel_spectrum(hc[:, None] * w))
         return (np.dot(hc, hc) - 2.0 * cross + quad) / n
-    # ncor with h centred on its own mean, as the loop route
+    # ncor and cmsd with h centred on its own mean, as the loop route
     hm = h - h.mean()
     s_m = corr(fwin * kernel_spectrum(w))
     s_hm = corr(fwin * kernel_spectrum(hm[:, None] * w))
     var_m = quad - s_m * s_m / n
+    if metric == "cmsd":
+        return centred_msd(float(np.dot(hm, hm)), s_hm, var_m, n)
     denom = np.sqrt(np.maximum(var_m, 1e-300) * max(float(np.dot(hm, hm)), 1e-300))
     return -(s_hm - hm.sum() * s_m / n) / denom
 
@@ -173,3 +175,14 @@ def _scatter(kshape, kr0, kc0, weights) -> np.ndarray:
     kern = np.zeros(kshape)
     _scatter_kernel(kern, kr0, kc0, np.ascontiguousarray(weights, dtype=np.float64))
     return kern
+
+
+def centred_msd(s_hh, s_hm, var_m, n):
+    """``cmsd`` from sums over the ``n`` valid samples, ``h`` centred on its own mean.
+
+    ``sum (d - mean d)^2 / n`` with ``d = h - m``: the mean squared difference once the
+    best constant offset between the measurements and the map is removed. ``s_hh`` is
+    ``sum h^2``, ``s_hm`` ``sum h m - sum h sum m / n`` and ``var_m``
+    ``sum m^2 - (sum m)^2 / n`` (map units squared).
+    """
+    return np.maximum(s_hh - 2.0 * s_hm + var_m, 0.0) / n

@@ -25,8 +25,8 @@ import numpy as np
 from geofix._threads import pick, twins
 from geofix.maps.mapread import bilinear_at
 
-MODES = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3}
-SUMS = {0: 1, 1: 1, 2: 1, 3: 5}
+MODES = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3, "cmsd": 4}
+SUMS = {0: 1, 1: 1, 2: 1, 3: 5, 4: 5}
 UNDERFLOW_LOG = 746.0
 """``exp(-746)`` is zero in double precision: weights beyond this log-gap vanish."""
 
@@ -173,7 +173,7 @@ def loop_sums(values, col, row, h, kc, kr, mode, prune=None):
     col, row : numpy.ndarray
         ``(n,)`` fractional cells of the samples along the indicated track.
     h : numpy.ndarray
-        ``(n,)`` measured values (for ``ncor``: centred on their mean).
+        ``(n,)`` measured values (for ``ncor`` and ``cmsd``: centred on their mean).
     kc, kr : numpy.ndarray
         Increasing, evenly spaced int64 whole-cell shifts along columns and rows.
     mode : int

@@ -71,6 +71,60 @@ def terrain_snr(problem: MatchProblem, track: np.ndarray, heading=None, beams=No
     return float(np.std(values) / problem.noise_std)
 
 
+def residual_design_effect(residual: np.ndarray) -> float:
+    """How many times fewer independent residuals a fit has than it has values.
+
+    The variance of the residuals' sum over that of independent ones (Kish's design
+    effect): within each ping (a map error shared by the beams of a swath), times along
+    the track (one that persists from ping to ping). Within: ``sum_k b_k^2 m_k^2 /
+    (s^2 sum_k b_k)`` with ``m_k`` the mean centred residual of ping ``k`` over its
+    ``b_k`` beams and ``s^2`` their variance (1 for independent beams, ``b`` for a shared
+    error). Along: ``1 + 2 sum_j rho_j`` over the lags of the ping means' autocorrelation
+    up to the first that is not positive (the initial positive sequence). Each factor at
+    least 1.
+
+    Parameters
+    ----------
+    residual : numpy.ndarray
+        ``(n, b)`` measured minus map along the fitted track, map units (NaN: missing).
+
+    Returns
+    -------
+    float
+        The design effect, at least 1 (1 with fewer than two values or no spread).
+    """
+    r = np.asarray(residual, dtype=float)
+    r = r.reshape(r.shape[0], -1)
+    ok = np.isfinite(r)
+    if ok.sum() < 2:
+        return 1.0
+    centred = np.where(ok, r - r[ok].mean(), 0.0)
+    var = float(np.sum(centred**2) / ok.sum())
+    if var <= 0:
+        return 1.0
+    counts = ok.sum(axis=1)
+    pings = counts > 0
+    means = centred.sum(axis=1)[pings] / counts[pings]
+    within = float(np.sum(counts[pings] ** 2 * means**2) / (var * counts.sum()))
+    return max(within, 1.0) * _along_track_effect(means)
+
+
+def _along_track_effect(series: np.ndarray) -> float:
+    """``1 + 2 sum_j rho_j`` over the initial positive autocorrelations, at least 1."""
+    x = series - series.mean()
+    n = x.size
+    denom = float(np.dot(x, x))
+    if n < 3 or denom <= 0:
+        return 1.0
+    total = 1.0
+    for lag in range(1, n // 2):
+        rho = float(np.dot(x[:-lag], x[lag:])) / denom
+        if rho <= 0:
+            break
+        total += 2.0 * rho
+    return total
+
+
 def information_covariance(
     problem: MatchProblem, track: np.ndarray, heading=None, beams=None
 ) -> np.ndarray:

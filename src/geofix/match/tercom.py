@@ -10,13 +10,20 @@ Scores, over the ``L`` valid samples (all beams of all points):
 - ``mad`` -- mean absolute difference (minimised),
 - ``cor`` -- mean product ``h_r * h_m`` (maximised; stored as its negative),
 - ``ncor`` -- normalised cross-correlation (maximised; an extension, insensitive to a
-  constant field offset such as a tide or gravimeter bias).
+  constant field offset such as a tide or gravimeter bias, and to the field's scale),
+- ``cmsd`` -- centred mean squared difference, the ``msd`` of the differences less their
+  mean (minimised; an extension: the best constant offset between the measurements and
+  the map is removed at each candidate, the field's scale kept).
 
-Integrity: the cost surface is turned into a pseudo-likelihood (Gaussian for ``msd``,
-Laplace for ``mad``, with the sensor noise as scale) whose mass-weighted spread is the
+Integrity: the cost surface is turned into a pseudo-likelihood (Gaussian for ``msd`` and
+``cmsd``, Laplace for ``mad``, with the sensor noise as scale) whose mass-weighted spread is the
 fix covariance; the fix is *ambiguous* when more than ``ambiguity_mass`` of that mass lies
 farther than ``exclusion_cells`` from the best candidate (a second minimum nearly as good
-as the first, far from it). For ``cor``/``ncor``, whose values are no distances, the
+as the first, far from it). The samples count as many as the residuals at the fix show
+independent (``L`` over their design effect, :func:`~geofix.match.integrity.
+residual_design_effect`: a map error shared by a swath's beams or persisting along the
+track), so a correlated map error widens the covariance instead of making a confident
+wrong fix. For ``cor``/``ncor``, whose values are no distances, the
 integrity check scores the same window once more with ``msd``. The INS drift inside the
 window, which one rigid offset cannot follow, is added to that covariance
 (:func:`geofix.match.drift.with_leg_drift`: the error of the last sample against the
@@ -30,7 +37,7 @@ Computation (:func:`tercom_cost_surface`, all routes give the same surface to ro
 with whole-cell candidate spacing the ``loop`` route keeps each sample's four bilinear
 weights fixed and sweeps contiguous map rows (``msd``/``mad`` with branch-and-bound on
 samples ordered by map gradient), the ``fft`` route correlates the map with sparse
-kernels built from the track (``msd``, ``cor``, ``ncor``; not ``mad``); any other spacing
+kernels built from the track (``msd``, ``cor``, ``ncor``, ``cmsd``; not ``mad``); any other spacing
 takes the ``direct`` route. ``route="auto"`` picks the cheaper of the first two by a cost
 model of reads against transform sizes.
 """
@@ -47,7 +54,7 @@ from geofix._threads import pick, twins
 from geofix.errors import ConfigError, MatchError
 from geofix.maps import mapread
 from geofix.maps.mapread import bilinear_at
-from geofix.match._tercom_fft import SUPPORTED, fft_cost, fft_window
+from geofix.match._tercom_fft import SUPPORTED, centred_msd, fft_cost, fft_window
 from geofix.match._tercom_integrity import surface_moments
 from geofix.match._tercom_loop import (
     MODES,
@@ -58,11 +65,12 @@ from geofix.match._tercom_loop import (
     whole_cell_shifts,
 )
 from geofix.match.drift import with_leg_drift
-from geofix.match.integrity import terrain_snr
+from geofix.match.integrity import residual_design_effect, terrain_snr
+from geofix.measurement import predict_track
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import Fix, MatchProblem
 
-_METRICS = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3}
+_METRICS = {"msd": 0, "mad": 1, "cor": 2, "ncor": 3, "cmsd": 4}
 # Float arrays of the cost surface's size alive at once: two surfaces (cor/ncor score
 # again with msd), the pseudo-likelihood, offset grids, distances and products.
 _SURFACE_COPIES = 12
@@ -75,7 +83,9 @@ class Tercom:
     Parameters
     ----------
     metric : str
-        ``"msd"`` (default), ``"mad"``, ``"cor"`` or ``"ncor"``.
+        ``"msd"`` (default), ``"mad"``, ``"cor"``, ``"ncor"`` or ``"cmsd"``. ``cmsd`` is
+        ``msd`` with the mean difference removed at each candidate: a constant offset of
+        the field (a tide, a gravimeter's bias) does not move the fix.
     window_sigma : float
         Half-side of the square search window in prior sigmas (the INS position 1-sigma at
         the last sample): 3 gives the 6-sigma window of source 001.
@@ -99,6 +109,15 @@ class Tercom:
         ``"all"`` matches every beam of a multibeam swath; ``"nadir"`` only the depth
         profile under the track (the beam nearest nadir), the classic line TERCOM.
 
+    correlated_residuals : bool
+        Count the samples of the pseudo-likelihood as the residuals at the fix show them:
+        ``L`` divided by their design effect (:func:`~geofix.match.integrity.
+        residual_design_effect`: a map error shared by a swath's beams or persisting
+        along the track makes fewer independent samples than values), so the covariance
+        and the ambiguity test widen where the residuals are correlated; the fix is
+        unchanged (default True; False counts every value as independent). Where the
+        design effect is large enough that the branch-and-bound's pruned candidates could
+        carry weight, the window is scored again without it.
     route : str
         How the cost surface is computed (:func:`tercom_cost_surface`): ``"auto"`` (the
         faster of ``"loop"`` and ``"fft"`` where they apply, else ``"direct"``) or one of
@@ -135,6 +154,7 @@ class Tercom:
     ambiguity_mass: float = 0.05
     min_terrain_snr: float = 1.0
     beams: str = "all"
+    correlated_residuals: bool = True
     route: str = "auto"
 
     def __post_init__(self) -> None:
@@ -162,13 +182,15 @@ class Tercom:
             raise MatchError("tercom: no candidate in the search window lies on valid map data")
         j, k = np.unravel_index(np.nanargmin(cost), cost.shape)
         offset = np.array([ox[k], oy[j]])
-        surface = cost
-        if self.metric in ("cor", "ncor"):
-            surface = _surface(problem, ox, oy, "msd", self.min_valid_fraction, self.route, margin)[
-                0
-            ]
-        own, ambiguous = self._integrity(problem, surface, ox, oy, (j, k))
         track = problem.indicated + offset
+        effect = self._design_effect(problem, track)
+        if self.metric in ("cor", "ncor"):
+            surface = self._rescored(problem, ox, oy, "msd", margin, effect)
+        elif route == "loop" and margin is not None and not pruning_holds(effect, cost.size):
+            surface = self._rescored(problem, ox, oy, self.metric, None, effect)
+        else:
+            surface = cost
+        own, ambiguous = self._integrity(problem, surface, ox, oy, (j, k), effect)
         snr = terrain_snr(problem, track)
         covariance, drift = with_leg_drift(problem, own, track)
         return Fix(
@@ -183,8 +205,26 @@ class Tercom:
                 "terrain_snr": snr,
                 "route": route,
                 "drift_covariance": drift,
+                "design_effect": effect,
             },
         )
+
+    def _rescored(self, problem, ox, oy, metric, margin, effect) -> np.ndarray:
+        """The window scored again with ``metric`` for the integrity analysis.
+
+        Pruned with ``margin`` only while the pruned weights stay negligible at the
+        residuals' design effect (:func:`pruning_holds`).
+        """
+        if not pruning_holds(effect, ox.size * oy.size):
+            margin = None
+        return _surface(problem, ox, oy, metric, self.min_valid_fraction, self.route, margin)[0]
+
+    def _design_effect(self, problem: MatchProblem, track: np.ndarray) -> float:
+        """The residuals' design effect at the fix (1 unless ``correlated_residuals``)."""
+        if not self.correlated_residuals:
+            return 1.0
+        mapped = predict_track(problem.grid, track, problem.heading, problem.offsets)
+        return residual_design_effect(problem.measured - mapped)
 
     def candidate_offsets(self, problem: MatchProblem) -> tuple[np.ndarray, np.ndarray]:
         """Candidate translations along x and y (metres), a separable square window."""
@@ -222,16 +262,17 @@ class Tercom:
         kind = "mad" if self.metric == "mad" else "msd"
         return lambda best: UNDERFLOW_LOG * _likelihood_scale(kind, problem, best) / samples
 
-    def _integrity(self, problem, msd, ox, oy, best) -> tuple[np.ndarray, bool]:
+    def _integrity(self, problem, msd, ox, oy, best, effect=1.0) -> tuple[np.ndarray, bool]:
         """Covariance of the offset and the ambiguity flag from an msd/mad surface.
 
         The pseudo-likelihood ``exp(-L (cost - min) / scale)`` (Gaussian scale for
-        ``msd``, Laplace for ``mad``) is normalised over the window; its weighted spread
-        plus the cell's quantisation variance is the covariance, its mass beyond
-        ``exclusion_cells`` from the best candidate the ambiguity test.
+        ``msd``, Laplace for ``mad``; ``L`` the valid samples over ``effect``, their
+        design effect) is normalised over the window; its weighted spread plus the cell's
+        quantisation variance is the covariance, its mass beyond ``exclusion_cells`` from
+        the best candidate the ambiguity test.
         """
         kind = "mad" if self.metric == "mad" else "msd"
-        samples = int(np.isfinite(problem.measured).sum())
+        samples = int(np.isfinite(problem.measured).sum()) / effect
         low = float(np.nanmin(msd))
         factor = samples / _likelihood_scale(kind, problem, low)
         cell = problem.grid.cell_size
@@ -252,12 +293,28 @@ class Tercom:
 
 ROUTES = ("auto", "loop", "fft", "direct")
 
+#: The pruned candidates' total weight against the best's, at most (:func:`pruning_holds`).
+PRUNED_MASS = 1e-12
+
+
+def pruning_holds(effect: float, candidates: int) -> bool:
+    """Whether a surface pruned for independent samples serves a design effect.
+
+    Branch-and-bound drops a candidate whose weight with all ``L`` samples independent
+    is ``exp(-746)`` or less (:data:`~geofix.match._tercom_loop.UNDERFLOW_LOG`); counted
+    as ``L / effect`` samples its weight is at most ``exp(-746 / effect)``. The pruning
+    holds while ``candidates`` such weights sum to at most :data:`PRUNED_MASS` of the
+    best's.
+    """
+    return candidates * np.exp(-UNDERFLOW_LOG / max(effect, 1.0)) <= PRUNED_MASS
+
+
 # Rough per-operation costs on one core (seconds), measured by benchmarks/bench_tercom.py,
 # used only to pick a route: the loop per sample x candidate, the FFT per transform point
 # and log2 of the transform size.
 _LOOP_S_PER_READ = 0.5e-9
 _FFT_S_PER_POINT_LOG = 1.0e-9
-_FFT_TRANSFORMS = {"msd": 13, "cor": 3, "ncor": 15}
+_FFT_TRANSFORMS = {"msd": 13, "cor": 3, "ncor": 15, "cmsd": 15}
 
 
 @dataclass(frozen=True)
@@ -302,7 +359,8 @@ def tercom_cost_surface(
         Candidate translations along x (east) and y (north), metres, increasing and
         evenly spaced.
     metric : str
-        ``"msd"``, ``"mad"``, ``"cor"`` or ``"ncor"``; maximised metrics are negated.
+        ``"msd"``, ``"mad"``, ``"cor"``, ``"ncor"`` or ``"cmsd"``; maximised metrics are
+        negated.
     min_valid_fraction : float
         Candidates with fewer valid map look-ups than this share are set to NaN.
     route : str
@@ -369,7 +427,7 @@ def _fft_is_faster(samples, kc, kr, window, metric) -> bool:
 def _loop(values, samples, kc, kr, metric, min_valid_fraction, prune_margin) -> np.ndarray:
     mode = MODES[metric]
     n = samples.h.size
-    h = samples.h - samples.h.mean() if metric == "ncor" else samples.h
+    h = samples.h - samples.h.mean() if metric in ("ncor", "cmsd") else samples.h
     prune = None
     if prune_margin is not None and metric in ("msd", "mad"):
         order = _information_order(values, samples)
@@ -413,11 +471,19 @@ def _finish(sums, count, n, mode, min_valid_fraction) -> np.ndarray:
             cost = sums[0] / valid
         elif mode == 2:
             cost = -sums[0] / valid
-        else:
+        elif mode == 3:
             s_m, s_mm, s_hm, s_h, s_hh = sums
             var_m = s_mm - s_m * s_m / valid
             denom = np.sqrt(np.maximum(var_m, 1e-300) * np.maximum(s_hh, 1e-300))
             cost = -(s_hm - s_h * s_m / valid) / denom
+        else:
+            s_m, s_mm, s_hm, s_h, s_hh = sums
+            cost = centred_msd(
+                s_hh - s_h * s_h / valid,
+                s_hm - s_h * s_m / valid,
+                s_mm - s_m * s_m / valid,
+                valid,
+            )
     cost[bad] = np.nan
     return cost
 
@@ -474,6 +540,15 @@ def _cost_kernel(values, col, row, h, ocol, orow, metric, min_valid_fraction):  
                 var_m = s_mm - s_m * s_m / valid
                 denom = np.sqrt(max(var_m, 1e-300) * max(s_hh, 1e-300))
                 out[j, k] = -(s_hm - s_h * s_m / valid) / denom
+            elif metric == 4:
+                spread = (
+                    s_hh
+                    - s_h * s_h / valid
+                    - 2.0 * (s_hm - s_h * s_m / valid)
+                    + s_mm
+                    - s_m * s_m / valid
+                )
+                out[j, k] = max(spread, 0.0) / valid
             else:
                 out[j, k] = acc / valid
     return out
