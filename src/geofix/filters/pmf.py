@@ -425,7 +425,7 @@ class Pmf(RecursiveFilter):
         if not np.isfinite(obs.values).any():
             return state
         if self.carries_offset and state.offset is None:
-            state = replace(state, offset=self._started(state.shape, obs))
+            state = replace(state, offset=self.started_offset(state.shape, obs))
         ll, offset = self.likelihood.nodes(grid, obs, state)
         return shared_offsets(
             replace(
@@ -436,7 +436,7 @@ class Pmf(RecursiveFilter):
             )
         )
 
-    def _started(self, shape, obs: Observation) -> HypothesisOffset | None:
+    def started_offset(self, shape, obs: Observation) -> HypothesisOffset | None:
         """The nodes' offsets at their first ping (:meth:`HypothesisOffset.start`)."""
         return HypothesisOffset.start(shape, obs, self.fast_offset_walk, self.offset_rates)
 
@@ -446,7 +446,7 @@ class Pmf(RecursiveFilter):
         offset = state.offset
         if np.isfinite(obs.values).any():
             if self.carries_offset and state.offset is None:
-                state = replace(state, offset=self._started(state.shape, obs))
+                state = replace(state, offset=self.started_offset(state.shape, obs))
             ll, offset = self.likelihood.nodes(grid, obs, state)
         evaluations = int(np.size(ll)) if np.ndim(ll) else 0
         count = len(state.field_offsets)
@@ -456,7 +456,7 @@ class Pmf(RecursiveFilter):
                 continue
             own = field_offsets[i]
             if own is None and self.carries_offset:
-                own = self._started(state.shape, field_obs)
+                own = self.started_offset(state.shape, field_obs)
             alone = replace(state, cell=field_grid.cell_size, offset=own)
             field_ll, field_offsets[i] = self.likelihood.nodes(field_grid, field_obs, alone)
             ll = ll + field_ll
