@@ -10,6 +10,8 @@ the suffix ``_simulator``).
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 from geofix.evaluate.bounds import (
     PRIORS,
     end_bound_rms,
@@ -23,6 +25,7 @@ __all__ = [
     "PRIORS",
     "end_bound_rms",
     "per_sample_bound",
+    "pooled_trials",
     "resolved_share",
     "track_bound_rms",
     "trial_bounds",
@@ -33,11 +36,12 @@ __all__ = [
 BOUND_JOBS = 2
 
 
-def trial_bounds(scen, trials: int, genie: tuple[str, ...] = ()) -> dict:
-    """``{name: (trials, n) array}``, m^2, for trials ``0 .. trials-1`` as simulated.
+@contextmanager
+def pooled_trials(trials: int):
+    """A ``mapper(function, indices)`` over :data:`BOUND_JOBS` processes, results in order.
 
-    Keys ``crlb`` and ``zzb``, each also with the suffix ``_simulator``; ``genie`` plus
-    each suffix named in ``genie`` (NaN where its grid no longer resolves the posterior).
+    Each process takes one contiguous block of the ``trials`` indices; a trial's result
+    is the same whichever process computes it.
     """
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
@@ -49,6 +53,16 @@ def trial_bounds(scen, trials: int, genie: tuple[str, ...] = ()) -> dict:
     with ProcessPoolExecutor(workers, mp_context=context) as pool:
 
         def mapper(function, indices):
-            return pool.map(function, indices, chunksize=-(-trials // workers))
+            return list(pool.map(function, indices, chunksize=-(-trials // workers)))
 
+        yield mapper
+
+
+def trial_bounds(scen, trials: int, genie: tuple[str, ...] = ()) -> dict:
+    """``{name: (trials, n) array}``, m^2, for trials ``0 .. trials-1`` as simulated.
+
+    Keys ``crlb`` and ``zzb``, each also with the suffix ``_simulator``; ``genie`` plus
+    each suffix named in ``genie`` (NaN where its grid no longer resolves the posterior).
+    """
+    with pooled_trials(trials) as mapper:
         return scenario_bound_tracks(scen, trials, genie, mapper=mapper)

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import numpy as np
 
-from sections._bounds import end_bound_rms, track_bound_rms, trial_bounds
+from sections._bounds import end_bound_rms, pooled_trials, track_bound_rms, trial_bounds
 from sections._common import FIGURES, OUT, SCENARIOS, campaign, fmt, md_table, prose
 
 TITLE = "Beyond the sources — Cramér–Rao bound, integrity on flat terrain, suitability"
@@ -243,20 +244,12 @@ def _genie_end(scen, trials: int, best: str, best_rms: float, crlb: float) -> st
     and its posterior mean's error on the same trials is that of the best estimator told
     the drift, on the very draws the filters met.
     """
-    from geofix.evaluate.ambiguity import AmbiguityGrid, genie_track
     from geofix.evaluate.campaign import campaign_map
-    from geofix.evaluate.crlb import trial_beam_variance
-    from geofix.sim.simulate import simulate_trial
 
     grid = campaign_map(scen)
-    settings = AmbiguityGrid(max_nodes=GENIE_END_NODES, min_sd_nodes=3.0)
-    variance, squared = [], []
-    for index in range(trials):
-        trial = simulate_trial(scen, grid, index)
-        track = genie_track(trial, grid, trial_beam_variance(trial), settings, True)
-        variance.append(track.variance[-1])
-        squared.append(track.squared_error[-1])
-    v, e = np.asarray(variance), np.asarray(squared)
+    with pooled_trials(trials) as mapper:
+        ends = mapper(partial(_genie_trial_end, scen, grid), range(trials))
+    v, e = np.asarray(ends, dtype=float).T
     resolved = np.isfinite(v)
     if not resolved.all():
         return (
@@ -274,6 +267,18 @@ def _genie_end(scen, trials: int, best: str, best_rms: float, crlb: float) -> st
         "the drift. A ratio near 1 says the miss is the sampling of a heavy-tailed error "
         "over these trials, not the filter.\n"
     )
+
+
+def _genie_trial_end(scen, grid, index: int) -> tuple[float, float]:
+    """The genie's end-point posterior variance and its mean's squared error, m^2."""
+    from geofix.evaluate.ambiguity import AmbiguityGrid, genie_track
+    from geofix.evaluate.crlb import trial_beam_variance
+    from geofix.sim.simulate import simulate_trial
+
+    trial = simulate_trial(scen, grid, index)
+    settings = AmbiguityGrid(max_nodes=GENIE_END_NODES, min_sd_nodes=3.0)
+    track = genie_track(trial, grid, trial_beam_variance(trial), settings, True)
+    return float(track.variance[-1]), float(track.squared_error[-1])
 
 
 FILTERS = ("pmf", "pf", "mpf")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from geofix.filters.hypothesis_offset import (
     HypothesisOffset,
     mixed_offsets,
     regridded_offsets,
+    shared_offsets,
     walk_factors,
 )
 from geofix.maps.grid import Grid
@@ -286,3 +289,98 @@ def test_a_map_error_over_kilometres_is_followed_as_a_faster_offset():
         assert error < 400.0 and nees < 5.0, (error, nees)
     for error, nees in ends("pmf:fast_offset_walk=0"):
         assert error > 2000.0 and nees > 100.0, (error, nees)
+
+
+def test_shared_rates_weigh_a_still_offset_and_refuse_an_unknown_setting():
+    obs = _obs([1.0], 1.0, bias_var=9.0, walk=0.1)
+    shared = HypothesisOffset.start(2, obs, 10.0, "shared")
+    np.testing.assert_allclose(shared.walks, [0.0, 0.1, 1.0])
+    np.testing.assert_allclose(np.exp(shared.log_prob), 1.0 / 3.0)
+    assert shared.shared_steady and shared.stationary == 9.0
+    # one rate: nothing to share
+    alone = HypothesisOffset.start(2, obs, 0.0, "shared")
+    assert alone.models == 1 and not alone.shared_steady
+    own = HypothesisOffset.start(2, obs, 10.0)
+    assert own.models == 2 and not own.shared_steady
+    for spec in ("pmf", "pf", "mpf"):
+        with pytest.raises(ConfigError, match="offset_rates must be own or shared"):
+            parse_method_spec(f"{spec}:offset_rates=mine")
+
+
+def test_the_steady_split_is_the_whole_posteriors_and_the_fast_rate_each_hypothesiss():
+    # rates (still, declared, fast) of two hypotheses, weights 0.8 and 0.2
+    prob = np.array([[0.6, 0.1], [0.2, 0.3], [0.2, 0.6]])
+    offset = HypothesisOffset(
+        means=np.zeros((3, 2)),
+        variances=np.ones(3),
+        walks=np.array([0.0, 1e-3, 1e-2]),
+        log_prob=np.log(prob),
+        stationary=25.0,
+        shared_steady=True,
+    )
+    weights = np.array([0.8, 0.2])
+    after = np.exp(offset.shared(np.log(weights)).log_prob)
+    # still: (0.8 * 0.6 + 0.2 * 0.1) / (0.8 * 0.8 + 0.2 * 0.4) = 0.5 / 0.72
+    still = 0.5 / 0.72
+    np.testing.assert_allclose(after[2], prob[2])  # the fast rate stays each one's own
+    np.testing.assert_allclose(after[0], still * (1.0 - prob[2]))
+    np.testing.assert_allclose(after[1], (1.0 - still) * (1.0 - prob[2]))
+    np.testing.assert_allclose(after.sum(axis=0), 1.0)
+    own = HypothesisOffset(offset.means, offset.variances, offset.walks, np.log(prob))
+    assert own.shared(np.log(weights)) is own
+    # a filter state's offset and every further field's, by the state's weights
+    state = _State(np.log(weights), offset, (None, offset))
+    done = shared_offsets(state)
+    np.testing.assert_allclose(np.exp(done.offset.log_prob), after)
+    np.testing.assert_allclose(np.exp(done.field_offsets[1].log_prob), after)
+    assert done.field_offsets[0] is None
+    plain = _State(np.log(weights), own, ())
+    assert shared_offsets(plain) is plain
+
+
+@dataclass(frozen=True)
+class _State:
+    log_weight: np.ndarray
+    offset: HypothesisOffset | None
+    field_offsets: tuple
+
+
+def _steady_pings(rates: str, pings: int = 120, dt: float = 20.0):
+    """Two hypotheses on a ramp: one on the track, one whose residuals drift.
+
+    Readings are the map at the first plus a constant 3-unit offset and N(0, 1) noise;
+    the second reads a map that differs by a slow sinusoid, as a hypothesis off the
+    track on a smooth field does. Returns the second's summed log-likelihood relative
+    to the first's.
+    """
+    rng = np.random.default_rng(8)
+    grid = _ramp()
+    positions = np.array([[300.0, 300.0], [300.0, 300.0]])
+    mapped = float(grid.sample(positions[:1, 0], positions[:1, 1])[0])
+    first = _obs([mapped], 1.0, bias_var=25.0, walk=1e-3)
+    offset = HypothesisOffset.start(2, first, 10.0, rates)
+    log_weight = np.log(np.array([0.5, 0.5]))
+    for k in range(pings):
+        offset = offset.predicted(dt)
+        drift = np.array([0.0, 4.0 * np.sin(k / 60.0)])
+        reading = mapped + 3.0 + rng.normal()
+        obs = _obs([reading], 1.0, 25.0, 1e-3)
+
+        def given(var, mean, drift=drift, reading=reading):
+            r = reading - (mapped + drift) - mean
+            return -0.5 * (r * r / (1.0 + var) + np.log(1.0 + var))
+
+        log_weight = log_weight + offset.marginal(given)
+        log_weight -= np.logaddexp.reduce(log_weight)
+        predicted = (mapped + drift)[:, None]
+        offset = offset.updated(grid, positions, obs, predicted).shared(log_weight)
+    return log_weight[1] - log_weight[0]
+
+
+def test_a_hypothesis_off_the_track_cannot_take_a_drift_the_posterior_does_not_see():
+    """With shared rates the drifting hypothesis is judged by the steady rate the track
+    shows, so it loses more weight than when it picks its own rate."""
+    own = _steady_pings("own")
+    shared = _steady_pings("shared")
+    # measured: -2.2 nats with its own rates, -8.0 shared
+    assert shared < own - 4.0, (own, shared)

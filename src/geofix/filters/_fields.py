@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from geofix.filters.base import Observation
-from geofix.filters.hypothesis_offset import HypothesisOffset
+from geofix.filters.hypothesis_offset import shared_offsets
 from geofix.maps.grid import Grid
 
 
@@ -36,9 +36,7 @@ def started_offsets(filt, state, fields) -> tuple:
     out = list(state.field_offsets) + [None] * (len(fields) - len(state.field_offsets))
     for i, (field_obs, _) in enumerate(fields):
         if out[i] is None and filt.carries_offset and np.isfinite(field_obs.values).any():
-            out[i] = HypothesisOffset.start(
-                state.log_weight.shape, field_obs, filt.fast_offset_walk
-            )
+            out[i] = filt.started_offset(state.log_weight.shape, field_obs)
     return tuple(out)
 
 
@@ -77,7 +75,7 @@ def update_particle_fields(
     if primary and filt.carries_offset and state.offset is None:
         state = replace(
             state,
-            offset=HypothesisOffset.start(state.log_weight.shape, obs, filt.fast_offset_walk),
+            offset=filt.started_offset(state.log_weight.shape, obs),
         )
     state = replace(state, field_offsets=started_offsets(filt, state, fields))
     model = filt.likelihood
@@ -110,4 +108,6 @@ def update_particle_fields(
         o if o is None or not ok else o.updated(g, at, fo)
         for o, ok, (fo, g) in zip(state.field_offsets, valid, fields, strict=True)
     )
-    return replace(state, evaluations=state.evaluations + reads, field_offsets=learnt)
+    return shared_offsets(
+        replace(state, evaluations=state.evaluations + reads, field_offsets=learnt)
+    )

@@ -46,6 +46,25 @@ from geofix.maps.grid import Grid
 from geofix.measurement import predict_measurements
 from geofix.memory import cells_bytes, check_allocation
 
+#: How a filter's hypotheses weigh the offset's walk rates (its ``offset_rates`` setting):
+#: ``own``, each by its own residuals; ``shared``, a still offset beside the declared and
+#: fast walks, the steady two weighed by the posterior over every hypothesis.
+OFFSET_RATES = ("own", "shared")
+
+
+def check_offset_rates(method: str, value: str) -> None:
+    """Refuse an ``offset_rates`` setting that is not one of :data:`OFFSET_RATES`.
+
+    Parameters
+    ----------
+    method : str
+        The method's name, for the message.
+    value : str
+        The setting.
+    """
+    if value not in OFFSET_RATES:
+        raise ConfigError(f"{method}: offset_rates must be own or shared, got {value!r}")
+
 
 def walk_factors(fast: float) -> tuple[float, ...]:
     """The walk rates a hypothesis weighs, as factors on the declared walk.
@@ -121,6 +140,7 @@ class HypothesisOffset:
     walks: np.ndarray
     log_prob: np.ndarray
     stationary: float = float("inf")
+    shared_steady: bool = False
 
     @classmethod
     def single(cls, mean, var: float, walk: float) -> HypothesisOffset:
@@ -131,7 +151,9 @@ class HypothesisOffset:
         )
 
     @classmethod
-    def start(cls, shape, obs: Observation, fast: float | None = None) -> HypothesisOffset | None:
+    def start(
+        cls, shape, obs: Observation, fast: float | None = None, rates: str = "own"
+    ) -> HypothesisOffset | None:
         """The prior ``N(0, obs.bias_var)`` for every hypothesis, or None without one.
 
         Parameters
@@ -149,6 +171,11 @@ class HypothesisOffset:
             is a Gauss-Markov process whose stationary variance is ``bias_var``: a fast
             rate follows an error that comes and goes without carrying the offset far
             from the level the readings and the map share.
+        rates : str
+            ``own`` or ``shared`` (:data:`OFFSET_RATES`): with ``shared`` and a faster
+            rate, a still offset (walk 0) is weighed beside the two, the three equally
+            likely a priori, and the steady two are weighed by the whole posterior
+            (:meth:`shared`).
         """
         if not (obs.bias_per_hypothesis and obs.bias_var > 0):
             return None
@@ -158,6 +185,9 @@ class HypothesisOffset:
         factors = np.asarray(walk_factors(fast), dtype=float)
         k = 1 if walk <= 0 else factors.size
         factors = factors[:k]
+        steady = rates == "shared" and k > 1
+        if steady:
+            factors, k = np.concatenate([[0.0], factors]), k + 1
         log_prior = np.full((k, *([1] * len(shape))), -np.log(k))
         return cls(
             np.zeros((k, *shape)),
@@ -165,6 +195,7 @@ class HypothesisOffset:
             walk * factors,
             np.broadcast_to(log_prior, (k, *shape)).copy(),
             float(obs.bias_var) if k > 1 else float("inf"),
+            steady,
         )
 
     @property
@@ -294,6 +325,34 @@ class HypothesisOffset:
             log_prob=log_prob.reshape(shape),
         )
 
+    def shared(self, log_weight) -> HypothesisOffset:
+        """The steady rates' split made once, by the posterior over every hypothesis.
+
+        With :attr:`shared_steady`, each hypothesis keeps its own probability of the fast
+        (last) rate and of the steady ones together, and the split of the latter between
+        the still offset and the declared walk becomes their posterior over all
+        hypotheses: ``q_k = sum_i w_i p_ik / sum_i w_i (p_i0 + p_i1)``, ``k`` = 0, 1.
+
+        Parameters
+        ----------
+        log_weight : numpy.ndarray
+            The hypotheses' posterior log-weights after the ping, their shape.
+
+        Returns
+        -------
+        HypothesisOffset
+            Itself without :attr:`shared_steady`.
+        """
+        if not self.shared_steady:
+            return self
+        lp = self.log_prob.reshape(self.models, -1)
+        steady = logsumexp(lp[:-1], axis=0)
+        mass = np.asarray(log_weight, dtype=float).reshape(-1) + steady
+        q = logsumexp(lp[:-1] - steady + mass, axis=1)
+        q = q - logsumexp(q)
+        log_prob = np.vstack([steady + q[:, None], lp[-1:]])
+        return replace(self, log_prob=log_prob.reshape(self.log_prob.shape))
+
     def _log_prior(self) -> np.ndarray:
         """``(K, 1)`` the rates' prior log-probabilities (equal)."""
         return np.full((self.models, 1), -np.log(self.models))
@@ -344,6 +403,30 @@ class HypothesisOffset:
             return replace(self, means=means, log_prob=np.zeros_like(means))
         log_prob = np.stack([regridded_offsets(lp, old, new, shape) for lp in self.log_prob])
         return replace(self, means=means, log_prob=log_prob - logsumexp(log_prob, axis=0))
+
+
+def shared_offsets(state):
+    """A filter state with every hypothesis offset's steady rates shared (:meth:`shared`).
+
+    Parameters
+    ----------
+    state
+        A filter state with ``log_weight`` (the posterior after the ping), ``offset``
+        and ``field_offsets``.
+    """
+    offset = state.offset
+    fields = state.field_offsets
+    if not (
+        (offset is not None and offset.shared_steady)
+        or any(o is not None and o.shared_steady for o in fields)
+    ):
+        return state
+    log_weight = state.log_weight
+    return replace(
+        state,
+        offset=None if offset is None else offset.shared(log_weight),
+        field_offsets=tuple(None if o is None else o.shared(log_weight) for o in fields),
+    )
 
 
 def _returned(log_prob: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
@@ -424,11 +507,14 @@ def regridded_offsets(mean: np.ndarray, old, new, shape) -> np.ndarray:
 
 
 __all__ = [
+    "OFFSET_RATES",
     "WALK_RETURN",
     "HypothesisOffset",
+    "check_offset_rates",
     "check_offset_walk",
     "mixed_offsets",
     "regridded_offsets",
+    "shared_offsets",
     "walk_factors",
 ]
 

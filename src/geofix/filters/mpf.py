@@ -108,7 +108,7 @@ from geofix.filters._weights import (
     systematic_resample,
 )
 from geofix.filters.base import Motion, Observation
-from geofix.filters.hypothesis_offset import HypothesisOffset
+from geofix.filters.hypothesis_offset import HypothesisOffset, shared_offsets
 from geofix.filters.motion import InsErrorState
 from geofix.filters.pf import ParticleSettings, pooled_offsets_of
 from geofix.maps.grid import Grid
@@ -390,7 +390,7 @@ class Mpf(ParticleSettings):
         if self.carries_offset and state.offset is None:
             state = replace(
                 state,
-                offset=HypothesisOffset.start(state.log_weight.shape, obs, self.fast_offset_walk),
+                offset=self.started_offset(state.log_weight.shape, obs),
             )
         model = self.likelihood
 
@@ -408,7 +408,7 @@ class Mpf(ParticleSettings):
         state, reads = self.progressive.apply(state, likelihood, self._spread_copies, rng)
         if state.offset is not None:
             state = replace(state, offset=state.offset.updated(grid, state.positions, obs))
-        return replace(state, evaluations=state.evaluations + reads)
+        return shared_offsets(replace(state, evaluations=state.evaluations + reads))
 
     def _update_fields(self, state: MpfState, obs: Observation, grid: Grid, rng, fields):
         """The primary ping (when it has a value) and every further field's, summed."""

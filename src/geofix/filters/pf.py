@@ -70,7 +70,9 @@ from geofix.filters._weights import (
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.hypothesis_offset import (
     HypothesisOffset,
+    check_offset_rates,
     check_offset_walk,
+    shared_offsets,
     walk_factors,
 )
 from geofix.filters.likelihood import TerrainLikelihood, check_field_variance
@@ -219,6 +221,10 @@ class ParticleSettings(RecursiveFilter):
         is 2, see :class:`Pf`). A map error
         correlated over more than a swath reads, along one path, as an offset that
         follows a misleading stretch of map; pooled, the neighbours' paths temper it.
+    offset_rates : str
+        How the particles weigh the offset's walk rates, as
+        :class:`geofix.filters.pmf.Pmf`'s: ``own`` (the default) or ``shared``
+        (:data:`geofix.filters.hypothesis_offset.OFFSET_RATES`).
     """
 
     name: ClassVar[str] = "particles"
@@ -239,6 +245,7 @@ class ParticleSettings(RecursiveFilter):
     fast_offset_walk: float | None = None
     offset_walk: float | None = None
     offset_pool: float = 0.0
+    offset_rates: str = "own"
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.offset_pool) and self.offset_pool >= 0):
@@ -246,6 +253,7 @@ class ParticleSettings(RecursiveFilter):
         if self.fast_offset_walk is not None:
             walk_factors(self.fast_offset_walk)
         check_offset_walk(self.name, self.offset_walk)
+        check_offset_rates(self.name, self.offset_rates)
         name = self.name
         if self.particles < 10 or self.max_particles < self.particles:
             raise ConfigError(
@@ -317,6 +325,10 @@ class ParticleSettings(RecursiveFilter):
     def carries_offset(self) -> bool:
         """Each particle carries its own common offset (``map_model=imperfect``)."""
         return self.map_model == "imperfect"
+
+    def started_offset(self, shape, obs: Observation) -> HypothesisOffset | None:
+        """The particles' offsets at their first ping (:meth:`HypothesisOffset.start`)."""
+        return HypothesisOffset.start(shape, obs, self.fast_offset_walk, self.offset_rates)
 
     def offset_moments(self, state, field: int | None = None) -> tuple[float, float] | None:
         """The posterior offset's mean and variance (map units), or None without one.
@@ -515,7 +527,7 @@ class Pf(ParticleSettings):
         if self.carries_offset and state.offset is None:
             state = replace(
                 state,
-                offset=HypothesisOffset.start(state.log_weight.shape, obs, self.fast_offset_walk),
+                offset=self.started_offset(state.log_weight.shape, obs),
             )
         model = self.likelihood
 
@@ -533,7 +545,7 @@ class Pf(ParticleSettings):
         state, reads = self.progressive.apply(state, likelihood, self._spread_copies, rng)
         if state.offset is not None:
             state = replace(state, offset=state.offset.updated(grid, state.particles, obs))
-        return replace(state, evaluations=state.evaluations + reads)
+        return shared_offsets(replace(state, evaluations=state.evaluations + reads))
 
     def _update_fields(self, state: PfState, obs: Observation, grid: Grid, rng, fields):
         """The primary ping (when it has a value) and every further field's, summed."""

@@ -76,7 +76,9 @@ from geofix.filters._grid_ops import REGRID_COPIES, check_regrid
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.hypothesis_offset import (
     HypothesisOffset,
+    check_offset_rates,
     check_offset_walk,
+    shared_offsets,
     walk_factors,
 )
 from geofix.filters.likelihood import TerrainLikelihood, check_field_variance, node_field_variance
@@ -261,6 +263,13 @@ class Pmf(RecursiveFilter):
         default): the stepper's settings (the navigator's ``depth_bias_walk``, 1e-3).
         Where the offset really is constant, the declared walk widens the covariance
         beyond the errors: the section *Imperfect maps* shows both.
+    offset_rates : str
+        How the hypotheses weigh the offset's walk rates
+        (:data:`geofix.filters.hypothesis_offset.OFFSET_RATES`): ``own`` (the default),
+        each by its own residuals; ``shared``, a still offset beside the declared and
+        fast walks, the choice between the steady two (still or declared) made by the
+        posterior over every hypothesis, so that a hypothesis off the track cannot
+        explain its residuals by a drift the others do not see.
 
     References
     ----------
@@ -300,11 +309,13 @@ class Pmf(RecursiveFilter):
     map_model: str = "imperfect"
     fast_offset_walk: float | None = None
     offset_walk: float | None = None
+    offset_rates: str = "own"
 
     def __post_init__(self) -> None:
         if self.fast_offset_walk is not None:
             walk_factors(self.fast_offset_walk)
         check_offset_walk(self.name, self.offset_walk)
+        check_offset_rates(self.name, self.offset_rates)
         check_motion_model("pmf", self.model)
         if self.points < 5 or self.points % 2 == 0:
             raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
@@ -414,16 +425,20 @@ class Pmf(RecursiveFilter):
         if not np.isfinite(obs.values).any():
             return state
         if self.carries_offset and state.offset is None:
-            state = replace(
-                state, offset=HypothesisOffset.start(state.shape, obs, self.fast_offset_walk)
-            )
+            state = replace(state, offset=self.started_offset(state.shape, obs))
         ll, offset = self.likelihood.nodes(grid, obs, state)
-        return replace(
-            state,
-            log_weight=ops.normalise(state.log_weight + ll),
-            evaluations=state.evaluations + ll.size,
-            offset=offset,
+        return shared_offsets(
+            replace(
+                state,
+                log_weight=ops.normalise(state.log_weight + ll),
+                evaluations=state.evaluations + ll.size,
+                offset=offset,
+            )
         )
+
+    def started_offset(self, shape, obs: Observation) -> HypothesisOffset | None:
+        """The nodes' offsets at their first ping (:meth:`HypothesisOffset.start`)."""
+        return HypothesisOffset.start(shape, obs, self.fast_offset_walk, self.offset_rates)
 
     def _update_fields(self, state: PmfState, obs: Observation, grid: Grid, fields) -> PmfState:
         """The primary ping (when it has a value) and every further field's, summed."""
@@ -431,9 +446,7 @@ class Pmf(RecursiveFilter):
         offset = state.offset
         if np.isfinite(obs.values).any():
             if self.carries_offset and state.offset is None:
-                state = replace(
-                    state, offset=HypothesisOffset.start(state.shape, obs, self.fast_offset_walk)
-                )
+                state = replace(state, offset=self.started_offset(state.shape, obs))
             ll, offset = self.likelihood.nodes(grid, obs, state)
         evaluations = int(np.size(ll)) if np.ndim(ll) else 0
         count = len(state.field_offsets)
@@ -443,19 +456,21 @@ class Pmf(RecursiveFilter):
                 continue
             own = field_offsets[i]
             if own is None and self.carries_offset:
-                own = HypothesisOffset.start(state.shape, field_obs, self.fast_offset_walk)
+                own = self.started_offset(state.shape, field_obs)
             alone = replace(state, cell=field_grid.cell_size, offset=own)
             field_ll, field_offsets[i] = self.likelihood.nodes(field_grid, field_obs, alone)
             ll = ll + field_ll
             evaluations += field_ll.size
         if not evaluations:
             return state
-        return replace(
-            state,
-            log_weight=ops.normalise(state.log_weight + ll),
-            evaluations=state.evaluations + evaluations,
-            offset=offset,
-            field_offsets=tuple(field_offsets),
+        return shared_offsets(
+            replace(
+                state,
+                log_weight=ops.normalise(state.log_weight + ll),
+                evaluations=state.evaluations + evaluations,
+                offset=offset,
+                field_offsets=tuple(field_offsets),
+            )
         )
 
     @property

@@ -177,7 +177,8 @@ def _scatter(kshape, kr0, kc0, weights) -> np.ndarray:
     return kern
 
 
-def centred_msd(s_hh, s_hm, var_m, n):
+@numba.njit(cache=True)
+def centred_msd(s_hh, s_hm, var_m, n):  # pragma: no cover - compiled
     """``cmsd`` from sums over the ``n`` valid samples, ``h`` centred on its own mean.
 
     ``sum (d - mean d)^2 / n`` with ``d = h - m``: the mean squared difference once the

@@ -541,14 +541,12 @@ def _cost_kernel(values, col, row, h, ocol, orow, metric, min_valid_fraction):  
                 denom = np.sqrt(max(var_m, 1e-300) * max(s_hh, 1e-300))
                 out[j, k] = -(s_hm - s_h * s_m / valid) / denom
             elif metric == 4:
-                spread = (
-                    s_hh
-                    - s_h * s_h / valid
-                    - 2.0 * (s_hm - s_h * s_m / valid)
-                    + s_mm
-                    - s_m * s_m / valid
+                out[j, k] = centred_msd(
+                    s_hh - s_h * s_h / valid,
+                    s_hm - s_h * s_m / valid,
+                    s_mm - s_m * s_m / valid,
+                    float(valid),
                 )
-                out[j, k] = max(spread, 0.0) / valid
             else:
                 out[j, k] = acc / valid
     return out
