@@ -70,9 +70,10 @@ def scenario(kinds: tuple[str, ...], monkeypatch) -> object:
 
 PF_FUSED_GAP = pytest.mark.xfail(
     strict=True,
-    reason="the particle filter ends about 37 m off fused (the fused bound about 7 m, pmf 6 m), "
-    "not half of its 67 m on gravity alone: its collapse on a sharp likelihood, as on the "
-    "EX1811 replay",
+    reason="the particle filter ends 47 m off fused at these two trials (27.5 m over 8, one "
+    "at 66 m; pmf 7.1 m, pf:offset_pool=0 13.8 m), not half of its error on gravity "
+    "alone: its collapse on a sharp likelihood, as on the EX1811 replay, which pooling "
+    "the per-path offsets of two fields widens",
 )
 
 
