@@ -68,17 +68,14 @@ def scenario(kinds: tuple[str, ...], monkeypatch) -> object:
     return scen, grids[kinds[0]]
 
 
-PF_FUSED_GAP = pytest.mark.xfail(
-    strict=True,
-    reason="the particle filter ends 47 m off fused at these two trials (27.5 m over 8, one "
-    "at 66 m; pmf 7.1 m, pf:offset_pool=0 13.8 m), not half of its error on gravity "
-    "alone: its collapse on a sharp likelihood, as on the EX1811 replay, which pooling "
-    "the per-path offsets of two fields widens",
-)
-
-
 @pytest.mark.parametrize(
-    "spec", ["pmf", pytest.param("pf", marks=PF_FUSED_GAP), "mpf", "pmf:model=errstate"]
+    "spec",
+    [
+        "pmf",
+        "pf",
+        "mpf",
+        "pmf:model=errstate",
+    ],
 )
 def test_two_fields_fix_what_neither_fixes_alone(spec, monkeypatch):
     """Each plane alone leaves one axis open (flagged ambiguous); both close it."""

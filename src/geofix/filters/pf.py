@@ -5,8 +5,9 @@ r"""The bootstrap particle filter (PF): the same recursion as the PMF with weigh
 - **predict**: when the effective sample size ``ESS = 1 / sum(w^2)`` has fallen below
   ``resample_threshold * particles``, the set is resampled systematically (one uniform
   draw) and roughened (Gordon, Salmond & Smith 1993: a normal jitter of standard deviation
-  ``roughening * E_i * M^(-1/2)`` along each axis ``i``, ``E_i`` the spread (max - min) of
-  the particles along it, ``M`` their number, 2 the dimension); then every particle moves
+  ``roughening * E_i * M^(-1/2)`` along each axis ``i``, ``roughening`` 0.5 by default
+  (half a particle spacing), ``E_i`` the spread (max - min) of the particles along
+  it, ``M`` their number, 2 the dimension); then every particle moves
   by the INS displacement plus a normal draw of per-axis variance ``Motion.process_var``
   (the bootstrap proposal: the motion prior);
 - **update**: the same measurement model as the PMF (the map read at every particle,
@@ -349,7 +350,15 @@ class Pf(ParticleSettings):
     Parameters
     ----------
     roughening : float
-        Gordon's roughening constant ``K`` (0.2 in Gordon et al. 1993); 0 switches it off.
+        The roughening constant ``K`` of Gordon et al. (1993), 0.5 by default: the copies
+        of a resampled particle are spread over half the gap to its neighbours (``E
+        M^(-1/2)`` is the spacing of ``M`` particles over a range ``E`` in two
+        dimensions). With the paper's 0.2 (``pf:roughening=0.2``) they stay within a
+        fifth of a spacing, and on a likelihood sharp against that spacing (a multibeam
+        ping on a map with correlated error, two fields fused) the set collapses onto the
+        particles that happened to lie nearest a wrong point and cannot move off it; with
+        1 a coarse map's flat likelihood lets the jitter carry the set away. 0 switches
+        it off.
     model : str
         Motion model: ``auto`` (default: ``errstate`` when the problem has an INS error
         model, ``rw`` when it has none), ``rw`` (every particle moves by the INS
@@ -382,7 +391,7 @@ class Pf(ParticleSettings):
 
     name: ClassVar[str] = "pf"
 
-    roughening: float = 0.2
+    roughening: float = 0.5
     model: str = "auto"
     use_dvl: bool = True
     offset_pool: float = 2.0
