@@ -70,10 +70,9 @@ def scenario(kinds: tuple[str, ...], monkeypatch) -> object:
 
 PF_FUSED_GAP = pytest.mark.xfail(
     strict=True,
-    reason="the particle filter ends 47 m off fused at these two trials (27.5 m over 8, one "
-    "at 66 m; pmf 7.1 m, pf:offset_pool=0 13.8 m), not half of its error on gravity "
-    "alone: its collapse on a sharp likelihood, as on the EX1811 replay, which pooling "
-    "the per-path offsets of two fields widens",
+    reason="the particle filter ends 47 m off fused at these two trials (pmf 5 m), not half "
+    "of its error on gravity alone: its collapse on a sharp likelihood, as on the EX1811 "
+    "replay",
 )
 
 

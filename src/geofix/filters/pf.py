@@ -363,9 +363,7 @@ class Pf(ParticleSettings):
         tracks against ETOPO1 at 10' at seeds held out from the choice, the unpooled
         filter claims ``converged`` with its error beyond 3 sigma on 69 of 2072 pings,
         pooled on none of 1800 (``pf:offset_pool=0`` is the unpooled filter; RESULTS,
-        *Real ship tracks*). On a sharp fused likelihood (two fields, each with its own
-        offsets per path) pooling widens the filter's collapse: see
-        ``tests/test_fused_filters.py``.
+        *Real ship tracks*).
 
     References
     ----------
