@@ -68,15 +68,7 @@ def scenario(kinds: tuple[str, ...], monkeypatch) -> object:
     return scen, grids[kinds[0]]
 
 
-@pytest.mark.parametrize(
-    "spec",
-    [
-        "pmf",
-        "pf",
-        "mpf",
-        "pmf:model=errstate",
-    ],
-)
+@pytest.mark.parametrize("spec", ["pmf", "pf", "mpf", "pmf:model=errstate"])
 def test_two_fields_fix_what_neither_fixes_alone(spec, monkeypatch):
     """Each plane alone leaves one axis open (flagged ambiguous); both close it."""
     ends, flagged = {}, {}
