@@ -13,6 +13,7 @@ Yardstick: :func:`_yardsticks.numpy_tercom_rows`, the plain row-chunked numpy se
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numba
@@ -95,6 +96,10 @@ def test_tercom_150_cells_110_points(benchmark, figures):
     numba.set_num_threads(1)
     try:
         one = paired_ratio(lambda: matcher.match(problem), lambda: numpy_reference(problem, ox, oy))
+        plain = dataclasses.replace(matcher, offset_std=0)
+        msd_only = paired_ratio(
+            lambda: plain.match(problem), lambda: numpy_reference(problem, ox, oy)
+        )
         full = paired_ratio(
             lambda: tercom_cost_surface(problem, ox, oy, route="loop"),
             lambda: numpy_reference(problem, ox, oy),
@@ -119,6 +124,8 @@ def test_tercom_150_cells_110_points(benchmark, figures):
         "samples": int(problem.n),
         "route": fix.diagnostics["route"],
         "match_1_thread": one,
+        "match_without_offset_1_thread": msd_only,
+        "offset_probability": float(fix.diagnostics["offset_probability"]),
         "loop_surface_no_pruning_1_thread": full,
         "loop_surface_no_pruning_2_threads": two,
         "goal_ratio": GOAL_RATIO,

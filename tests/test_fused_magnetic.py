@@ -9,7 +9,7 @@ import xarray as xr
 import geofix
 from geofix.errors import ConfigError
 from geofix.evaluate.runner import method_rng, run_trial
-from geofix.filters.nuisance import default_offset_std
+from geofix.maps.offset import default_offset_std
 from geofix.maps.grid import Grid
 from geofix.methods import parse_method_spec
 from geofix.sim import scenario_from_dict, simulate_trial

@@ -11,7 +11,7 @@ import pytest
 import xarray as xr
 
 from geofix.errors import GeofixWarning, MapError
-from geofix.filters.nuisance import default_offset_std
+from geofix.maps.offset import default_offset_std
 from geofix.logs.mgd77 import field_segments, pick_segment
 from geofix.maps import Grid, load_grid
 from geofix.replay import nees, replay, window_mission

@@ -217,7 +217,8 @@ def _numpy_integrity(matcher, problem, surface, ox, oy, effect=1.0):
 def test_integrity_equals_the_numpy_pseudo_likelihood(metric):
     rng = np.random.default_rng(9)
     problem = _problem(_grid(rng), rng, n=6, beams=1, noise=2.0)  # a broad likelihood
-    matcher = Tercom(metric=metric, window_m=12 * 10.0, exclusion_cells=1.0)
+    # the msd surface's own integrity (offset_std=0; the offset-weighed one below)
+    matcher = Tercom(metric=metric, window_m=12 * 10.0, exclusion_cells=1.0, offset_std=0)
     fix = matcher.match(problem)
     ox, oy = matcher.candidate_offsets(problem)
     kind = {"mad": "mad", "cmsd": "cmsd"}.get(metric, "msd")  # cor/ncor: judged by msd
@@ -239,7 +240,7 @@ def test_a_large_design_effect_scores_the_pruned_candidates_again(metric):
     problem = _problem(_grid(rng), rng, n=40, beams=5, noise=0.5)
     drift = np.cumsum(rng.normal(0.0, 1.0, problem.measured.shape[0]))
     problem = dataclasses.replace(problem, measured=problem.measured + drift[:, None])
-    matcher = Tercom(metric=metric, window_m=25 * 10.0, route="loop")
+    matcher = Tercom(metric=metric, window_m=25 * 10.0, route="loop", offset_std=0)
     fix = matcher.match(problem)
     effect = fix.diagnostics["design_effect"]
     ox, oy = matcher.candidate_offsets(problem)
@@ -247,7 +248,56 @@ def test_a_large_design_effect_scores_the_pruned_candidates_again(metric):
     surface = brute_force(problem, ox, oy, metric)
     cov, _ = _numpy_integrity(matcher, problem, surface, ox, oy, effect)
     np.testing.assert_allclose(fix.covariance, cov, rtol=1e-9)
-    independent = Tercom(metric=metric, window_m=25 * 10.0, correlated_residuals=False)
+    independent = Tercom(
+        metric=metric, window_m=25 * 10.0, correlated_residuals=False, offset_std=0
+    )
     narrow = independent.match(problem)
     np.testing.assert_allclose(narrow.track, fix.track)
     assert np.trace(fix.covariance) > 2.0 * np.trace(narrow.covariance)
+
+
+def _numpy_offset_mixture(matcher, problem, ox, oy, effect, offset_std):
+    """The offset-weighed covariance in plain numpy from brute-force surfaces (reference)."""
+    msd = brute_force(problem, ox, oy, "msd")
+    cmsd = brute_force(problem, ox, oy, "cmsd")
+    n = int(np.isfinite(problem.measured).sum())
+    samples = n / effect
+    weight = offset_std**2 / (offset_std**2 + problem.noise_std**2 / n)
+    marginal = (1 - weight) * msd + weight * cmsd
+    j, k = np.unravel_index(np.nanargmin(msd), msd.shape)
+    var = max(problem.noise_std**2, cmsd[j, k])
+    se2 = var / samples
+    ref = np.nanmin(marginal)
+    w0 = np.exp(-samples * (np.nan_to_num(msd, nan=np.inf) - ref) / (2 * var))
+    w1 = np.exp(-samples * (np.nan_to_num(marginal, nan=np.inf) - ref) / (2 * var))
+    w1 *= np.sqrt(se2 / (se2 + offset_std**2))
+    p_offset = w1.sum() / (w0.sum() + w1.sum())
+    cell = problem.grid.cell_size
+    plain, _ = _numpy_integrity(matcher, problem, msd, ox, oy, effect)
+    dx, dy = np.meshgrid(ox - ox[k], oy - oy[j])
+    low = np.nanmin(msd)
+    v0 = np.exp(
+        -samples * (np.nan_to_num(msd, nan=np.inf) - low) / (2 * max(problem.noise_std**2, low))
+    )
+    mean0 = np.array([(v0 * dx).sum(), (v0 * dy).sum()]) / v0.sum()
+    w1 = w1 / w1.sum()
+    d = np.stack([dx - mean0[0], dy - mean0[1]])
+    second1 = np.einsum("ajk,bjk,jk->ab", d, d, w1)
+    spread = (1 - p_offset) * (plain - np.eye(2) * cell**2 / 12) + p_offset * second1
+    return spread + np.eye(2) * cell**2 / 12, p_offset
+
+
+@pytest.mark.parametrize("route", ["loop", "fft", "direct"])
+def test_offset_weighed_integrity_equals_the_numpy_mixture(route):
+    rng = np.random.default_rng(9)
+    problem = _problem(_grid(rng), rng, n=12, beams=1, noise=0.5)
+    problem = dataclasses.replace(problem, measured=problem.measured + 1.5)  # a tide
+    matcher = Tercom(window_m=12 * 10.0, route=route, offset_std=2.0)
+    fix = matcher.match(problem)
+    ox, oy = matcher.candidate_offsets(problem)
+    cov, p_offset = _numpy_offset_mixture(
+        matcher, problem, ox, oy, fix.diagnostics["design_effect"], 2.0
+    )
+    assert 0.01 < p_offset < 0.99  # both models carry weight: the mixture is tested
+    assert fix.diagnostics["offset_probability"] == pytest.approx(p_offset, rel=1e-6)
+    np.testing.assert_allclose(fix.covariance, cov, rtol=1e-6)

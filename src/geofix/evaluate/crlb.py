@@ -700,7 +700,7 @@ def trial_offset_model(trial, grid: Grid, offset_std=None, offset_walk=None) -> 
         The primary field's seabed (its prior map is ``trial.prior_map`` when set).
     offset_std : float or array_like, optional
         Prior 1-sigma, map units: one for every field or ``(F,)``; None: each field's
-        :func:`geofix.filters.nuisance.default_offset_std` of its prior map.
+        :func:`geofix.maps.offset.default_offset_std` of its prior map.
     offset_walk : float or array_like, optional
         Variance gained per second, map units squared per second: one for every field or
         ``(F,)``; None: the filters' default ``depth_bias_walk``
@@ -712,7 +712,7 @@ def trial_offset_model(trial, grid: Grid, offset_std=None, offset_walk=None) -> 
         ``(std (F,), walk (F,))``.
     """
     from geofix.filters.loop import FilterSettings
-    from geofix.filters.nuisance import default_offset_std
+    from geofix.maps.offset import default_offset_std
 
     priors = [_prior_of(trial, grid)] + [f.grid for f in getattr(trial, "fields", ())]
     count = len(priors)

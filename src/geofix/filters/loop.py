@@ -22,7 +22,7 @@ position is settled (the navigator: while ``converged``; never in a campaign tri
 gravimeter or a magnetometer beside the echosounder) gives a filter that weighs them
 (``fuses_fields``: PMF, PF, MPF) one observation per field at every sample and one set of
 nuisance states per field -- its own common offset (at its map's default prior,
-:func:`~geofix.filters.nuisance.default_offset_std`, when the settings leave the offset
+:func:`~geofix.maps.offset.default_offset_std`, when the settings leave the offset
 to the map), residual scale and representation share, learnt from its own innovations.
 The filter's update adds the fields' log-likelihoods at the same hypotheses (the product
 of their likelihoods), and a filter that carries the offset per hypothesis carries one
@@ -49,13 +49,13 @@ from geofix.filters.nuisance import (
     SwathModes,
     correlated_share,
     default_fast_offset_walk,
-    default_offset_std,
     read_at_points,
     representation_std,
     swath_shapes,
 )
 from geofix.filters.state import SteppedFilter
 from geofix.maps.grid import Grid
+from geofix.maps.offset import default_offset_std
 from geofix.measurement import lag_compensated, map_error_variance, predict_measurements
 
 if TYPE_CHECKING:  # annotations only: base.run_filter imports this module
@@ -76,7 +76,7 @@ class FilterSettings:
         The map read of the measurement model.
     depth_bias_std : float or None
         Prior 1-sigma of the common offset, map units (0: none; None: the map's default,
-        :func:`geofix.filters.nuisance.default_offset_std`).
+        :func:`geofix.maps.offset.default_offset_std`).
     depth_bias_walk : float
         Variance the offset gains per second, map units squared per second.
     representation_error : bool

@@ -43,18 +43,13 @@ from scipy import ndimage
 
 from geofix.errors import ConfigError
 from geofix.maps.grid import Grid
+from geofix.maps.offset import default_offset_std
 from geofix.measurement import common_bias_posterior, predict_measurements
 from geofix.memory import cells_bytes, check_allocation
 
 if TYPE_CHECKING:  # annotations only: the filter loop below base.run_filter imports this
     from geofix.filters.base import Observation
 
-#: Default prior 1-sigma of the common offset for a depth map: metres plus a share of the
-#: water depth (a sound-speed error of 0.2 % scales every depth).
-DEPTH_OFFSET_STD_M = 5.0
-DEPTH_OFFSET_SHARE = 0.002
-#: Default prior 1-sigma of the common offset for a gravity map, mGal.
-GRAVITY_OFFSET_STD_MGAL = 5.0
 #: The second, faster walk rate a gravity map's per-hypothesis offset weighs by default, as
 #: a factor on the declared walk (:func:`default_fast_offset_walk`).
 GRAVITY_FAST_OFFSET_WALK = 10.0
@@ -85,37 +80,6 @@ def check_map_model(name: str, value: str) -> None:
     """
     if value not in MAP_MODELS:
         raise ConfigError(f"{name}: map_model must be exact, adaptive or imperfect, got {value!r}")
-
-
-def default_offset_std(grid: Grid) -> float:
-    """Prior 1-sigma of the common offset when the settings leave it open, map units.
-
-    Parameters
-    ----------
-    grid : Grid
-        The prior map: its kind and its median field value.
-
-    Returns
-    -------
-    float
-        What the map states (:attr:`geofix.maps.grid.Grid.stated_offset_std`, a file's
-        ``offset_std`` attribute) when it states it; else a depth map: ``5 m + 0.2 %`` of
-        the median water depth (a tide, a datum, a sound-speed error); a gravity map:
-        5 mGal; a magnetic map: 20 nT (the diurnal variation left after a base-station
-        correction, and the offset between the map's crustal model and the vehicle's
-        reference field).
-    """
-    stated = grid.stated_offset_std
-    if stated is not None:
-        return stated
-    if grid.kind == "gravity":
-        return GRAVITY_OFFSET_STD_MGAL
-    if grid.kind == "magnetic":
-        return 20.0  # nT
-    values = np.asarray(grid.values, dtype=float)
-    finite = values[np.isfinite(values)]
-    depth = float(np.median(np.abs(finite))) if finite.size else 0.0
-    return DEPTH_OFFSET_STD_M + DEPTH_OFFSET_SHARE * depth
 
 
 def default_fast_offset_walk(grid: Grid) -> float:

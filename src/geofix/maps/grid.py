@@ -102,7 +102,7 @@ class Grid:
         ``meta["offset_std"]``: how far the map's level may sit from the readings' (a
         datum, a reference field or formula, a reduction to another height), the prior of
         the filters' common offset in place of the map kind's default
-        (:func:`geofix.filters.nuisance.default_offset_std`); None when the map states
+        (:func:`geofix.maps.offset.default_offset_std`); None when the map states
         none.
 
         Raises

@@ -24,7 +24,13 @@ independent (``L`` over their design effect, :func:`~geofix.match.integrity.
 residual_design_effect`: a map error shared by a swath's beams or persisting along the
 track), so a correlated map error widens the covariance instead of making a confident
 wrong fix. For ``cor``/``ncor``, whose values are no distances, the
-integrity check scores the same window once more with ``msd``. The INS drift inside the
+integrity check scores the same window once more with ``msd``. A constant offset between
+the readings and the map (a tide, a datum, a gravimeter's bias) moves an ``msd`` fix
+without widening its surface, so the covariance of an ``msd``-scored fix weighs two
+models by their evidence (:func:`offset_weighed_moments`): no offset, and an offset drawn
+from its prior (:func:`geofix.maps.offset.default_offset_std`) and marginalised at
+every candidate; the fix stays the ``msd`` minimum, its covariance and ambiguity mass
+are the mixture's about the no-offset mean. The INS drift inside the
 window, which one rigid offset cannot follow, is added to that covariance
 (:func:`geofix.match.drift.with_leg_drift`: the error of the last sample against the
 information-weighted mean error the offset fits). The fix is also flagged
@@ -49,19 +55,25 @@ from typing import ClassVar
 
 import numba
 import numpy as np
+from scipy.special import logsumexp
 
 from geofix._threads import pick, twins
 from geofix.errors import ConfigError, MatchError
 from geofix.maps import mapread
 from geofix.maps.mapread import bilinear_at
+from geofix.maps.offset import default_offset_std
 from geofix.match._tercom_fft import SUPPORTED, centred_msd, fft_cost, fft_window
 from geofix.match._tercom_integrity import surface_moments
 from geofix.match._tercom_loop import (
+    MARGINAL,
     MODES,
     UNDERFLOW_LOG,
+    JointPrune,
     distance_cost,
     exact_costs,
+    exact_marginal,
     loop_sums,
+    marginal_cost,
     whole_cell_shifts,
 )
 from geofix.match.drift import with_leg_drift
@@ -118,6 +130,14 @@ class Tercom:
         unchanged (default True; False counts every value as independent). Where the
         design effect is large enough that the branch-and-bound's pruned candidates could
         carry weight, the window is scored again without it.
+    offset_std : float or None
+        Prior 1-sigma of a constant offset between the readings and the map, map units
+        (a tide, a datum, a gravimeter's bias): the covariance and the ambiguity test of an
+        ``msd``-scored fix (``msd``, ``cor``, ``ncor``) weigh the fix with and without such
+        an offset by their evidence (:func:`offset_weighed_moments`); the fix is
+        unchanged. None (default): the map's prior (:func:`geofix.maps.offset.
+        default_offset_std`: what the map states, else 5 m + 0.2 % of the depth, 5 mGal,
+        20 nT); 0: no offset weighed (the covariance of the ``msd`` surface alone).
     route : str
         How the cost surface is computed (:func:`tercom_cost_surface`): ``"auto"`` (the
         faster of ``"loop"`` and ``"fft"`` where they apply, else ``"direct"``) or one of
@@ -155,6 +175,7 @@ class Tercom:
     min_terrain_snr: float = 1.0
     beams: str = "all"
     correlated_residuals: bool = True
+    offset_std: float | None = None
     route: str = "auto"
 
     def __post_init__(self) -> None:
@@ -168,6 +189,12 @@ class Tercom:
             raise ConfigError(f"tercom: beams must be 'all' or 'nadir', got {self.beams!r}")
         if self.route not in ROUTES:
             raise ConfigError(f"tercom: route must be one of {ROUTES}, got {self.route!r}")
+        if self.offset_std is not None and not (
+            isinstance(self.offset_std, int | float) and 0 <= self.offset_std < np.inf
+        ):
+            raise ConfigError(
+                f"tercom: offset_std must be a number >= 0 or None, got {self.offset_std!r}"
+            )
 
     def match(self, problem: MatchProblem, rng: np.random.Generator | None = None) -> Fix:
         """Search the window and return the best translation of the indicated track."""
@@ -175,22 +202,30 @@ class Tercom:
             problem = problem.nadir()
         ox, oy = self.candidate_offsets(problem)
         margin = self._prune_margin(problem)
-        cost, route = _surface(
-            problem, ox, oy, self.metric, self.min_valid_fraction, self.route, margin
-        )
+        weight = self._offset_weight(problem)
+        marginal = None
+        if weight is not None and self.metric == "msd":
+            cost, marginal, route = offset_surfaces(
+                problem, ox, oy, weight, self.min_valid_fraction, self.route, margin
+            )
+        else:
+            cost, route = _surface(
+                problem, ox, oy, self.metric, self.min_valid_fraction, self.route, margin
+            )
         if not np.isfinite(cost).any():
             raise MatchError("tercom: no candidate in the search window lies on valid map data")
         j, k = np.unravel_index(np.nanargmin(cost), cost.shape)
         offset = np.array([ox[k], oy[j]])
         track = problem.indicated + offset
         effect = self._design_effect(problem, track)
+        surface = cost
         if self.metric in ("cor", "ncor"):
-            surface = self._rescored(problem, ox, oy, "msd", margin, effect)
+            surface, marginal = self._rescored(problem, ox, oy, "msd", margin, effect, weight)
         elif route == "loop" and margin is not None and not pruning_holds(effect, cost.size):
-            surface = self._rescored(problem, ox, oy, self.metric, None, effect)
-        else:
-            surface = cost
-        own, ambiguous = self._integrity(problem, surface, ox, oy, (j, k), effect)
+            surface, marginal = self._rescored(problem, ox, oy, self.metric, None, effect, weight)
+        own, ambiguous, p_offset = self._integrity(
+            problem, surface, ox, oy, (j, k), effect, marginal
+        )
         snr = terrain_snr(problem, track)
         covariance, drift = with_leg_drift(problem, own, track)
         return Fix(
@@ -206,18 +241,43 @@ class Tercom:
                 "route": route,
                 "drift_covariance": drift,
                 "design_effect": effect,
+                "offset_probability": p_offset,
             },
         )
 
-    def _rescored(self, problem, ox, oy, metric, margin, effect) -> np.ndarray:
+    def _rescored(self, problem, ox, oy, metric, margin, effect, weight=None) -> tuple:
         """The window scored again with ``metric`` for the integrity analysis.
 
         Pruned with ``margin`` only while the pruned weights stay negligible at the
-        residuals' design effect (:func:`pruning_holds`).
+        residuals' design effect (:func:`pruning_holds`). Returns ``(surface, marginal)``:
+        with an offset ``weight`` and ``msd``, the offset-marginalised cost beside it
+        (:func:`offset_surfaces`), else None.
         """
         if not pruning_holds(effect, ox.size * oy.size):
             margin = None
-        return _surface(problem, ox, oy, metric, self.min_valid_fraction, self.route, margin)[0]
+        if weight is not None and metric == "msd":
+            msd, marginal, _ = offset_surfaces(
+                problem, ox, oy, weight, self.min_valid_fraction, self.route, margin
+            )
+            return msd, marginal
+        cost = _surface(problem, ox, oy, metric, self.min_valid_fraction, self.route, margin)
+        return cost[0], None
+
+    def _offset_weight(self, problem: MatchProblem) -> float | None:
+        """Share of a candidate's squared mean difference an offset takes out, or None.
+
+        ``offset_std^2 / (offset_std^2 + noise^2 / L)`` over the ``L`` valid samples, the
+        offset's prior from the setting or the map (:func:`default_offset_std`); None
+        where no offset is weighed (``offset_std=0``, or ``mad`` and ``cmsd``, whose
+        surfaces are no Gaussian ``msd``, or which removes the offset itself).
+        """
+        if self.metric in ("mad", "cmsd"):
+            return None
+        prior = default_offset_std(problem.grid) if self.offset_std is None else self.offset_std
+        if prior <= 0:
+            return None
+        samples = max(int(np.isfinite(problem.measured).sum()), 1)
+        return prior**2 / (prior**2 + max(problem.noise_std**2, 1e-12) / samples)
 
     def _design_effect(self, problem: MatchProblem, track: np.ndarray) -> float:
         """The residuals' design effect at the fix (1 unless ``correlated_residuals``)."""
@@ -262,33 +322,243 @@ class Tercom:
         kind = "mad" if self.metric == "mad" else "msd"
         return lambda best: UNDERFLOW_LOG * _likelihood_scale(kind, problem, best) / samples
 
-    def _integrity(self, problem, msd, ox, oy, best, effect=1.0) -> tuple[np.ndarray, bool]:
-        """Covariance of the offset and the ambiguity flag from an msd/mad surface.
+    def _integrity(
+        self, problem, msd, ox, oy, best, effect=1.0, marginal=None
+    ) -> tuple[np.ndarray, bool, float]:
+        """Covariance, ambiguity flag and offset probability from an msd/mad surface.
 
         The pseudo-likelihood ``exp(-L (cost - min) / scale)`` (Gaussian scale for
         ``msd``, Laplace for ``mad``; ``L`` the valid samples over ``effect``, their
         design effect) is normalised over the window; its weighted spread plus the cell's
         quantisation variance is the covariance, its mass beyond ``exclusion_cells`` from
-        the best candidate the ambiguity test.
+        the best candidate the ambiguity test. With the offset-marginalised cost beside
+        it (``marginal``) the no-offset and the offset model are weighed by their
+        evidence (:func:`offset_weighed_moments`); the third value is the offset model's
+        probability (0 when none is weighed).
         """
         kind = "mad" if self.metric == "mad" else "msd"
         samples = int(np.isfinite(problem.measured).sum()) / effect
         low = float(np.nanmin(msd))
         factor = samples / _likelihood_scale(kind, problem, low)
-        cell = problem.grid.cell_size
-        _, _, cxx, cyy, cxy, far = surface_moments(
-            np.ascontiguousarray(msd, dtype=float),
-            low,
-            factor,
-            np.ascontiguousarray(ox, dtype=float),
-            np.ascontiguousarray(oy, dtype=float),
-            int(best[0]),
-            int(best[1]),
-            self.exclusion_cells * cell,
-        )
-        quantisation = cell**2 / 12
-        covariance = np.array([[cxx + quantisation, cxy], [cxy, cyy + quantisation]])
-        return covariance, bool(far > self.ambiguity_mass)
+        radius = self.exclusion_cells * problem.grid.cell_size
+        mx, my, cxx, cyy, cxy, far = _moments(msd, low, factor, ox, oy, best, radius)
+        spread = np.array([[cxx, cxy], [cxy, cyy]])
+        p_offset = 0.0
+        if marginal is not None:
+            prior = default_offset_std(problem.grid) if self.offset_std is None else self.offset_std
+            model = OffsetModel.at_fix(problem, ox, oy, best, samples, prior, radius)
+            spread, far, p_offset = offset_weighed_moments(
+                msd, marginal, ox, oy, best, model, (np.array([mx, my]), spread, far)
+            )
+        covariance = spread + np.eye(2) * problem.grid.cell_size**2 / 12
+        return covariance, bool(far > self.ambiguity_mass), p_offset
+
+
+@dataclass(frozen=True)
+class OffsetModel:
+    """A constant offset between the readings and the map, as TERCOM weighs it.
+
+    The readings are the map plus white noise of variance ``var``, plus (in the offset
+    model) an offset ``b ~ N(0, offset_std^2)``. Marginalising ``b`` at a candidate whose
+    differences ``d`` (measured minus map) have mean ``mean d`` leaves the likelihood
+    ``exp(-factor [(1 - weight) msd + weight cmsd])`` times :attr:`occam`, with ``factor
+    = L / (2 var)``, ``se^2 = var / L`` and ``weight = offset_std^2 / (offset_std^2 +
+    se^2)``: the ``msd`` with the offset the candidate asks for taken out, less a penalty
+    on its size. The cost's ``weight`` is set before the search from the sensor's noise
+    and all valid samples (:meth:`Tercom._offset_weight`), so that one branch-and-bound
+    prunes both surfaces; the residuals' variance and their design effect only widen
+    ``se``, so that weight is the largest and its penalty on an offset's size at most
+    the model's.
+
+    Attributes
+    ----------
+    samples : float
+        Independent samples ``L`` (the valid samples over their design effect).
+    var : float
+        Residual variance both models share, map units squared.
+    offset_std : float
+        Prior 1-sigma of the offset, map units (> 0).
+    radius : float
+        Exclusion radius of the ambiguity test, metres.
+    """
+
+    samples: float
+    var: float
+    offset_std: float
+    radius: float
+
+    @classmethod
+    def at_fix(cls, problem, ox, oy, best, samples, offset_std, radius) -> OffsetModel:
+        """The model with ``var`` the residuals' variance about their mean at the fix.
+
+        Floored at the sensor's noise variance: what both models must explain, taken
+        where the ``msd`` put the fix (the best constant offset removed there).
+        """
+        grid = problem.grid
+        j, k = int(best[0]), int(best[1])
+        centred = _direct(
+            np.ascontiguousarray(grid.values),
+            _samples(problem),
+            np.array([ox[k] / grid.dx]),
+            np.array([oy[j] / grid.dy]),
+            "cmsd",
+            0.0,
+        )[0, 0]
+        var = max(problem.noise_std**2, float(np.nan_to_num(centred, nan=0.0)), 1e-12)
+        return cls(float(samples), var, float(offset_std), float(radius))
+
+    @property
+    def factor(self) -> float:
+        """``L / (2 var)``: the pseudo-likelihood's factor on a cost, per map unit squared."""
+        return self.samples / (2.0 * self.var)
+
+    @property
+    def occam(self) -> float:
+        """``log(se / hypot(se, offset_std))``: the price of a free offset in the evidence."""
+        se2 = self.var / self.samples
+        return 0.5 * float(np.log(se2 / (se2 + self.offset_std**2)))
+
+
+def offset_weighed_moments(msd, marginal, ox, oy, best, model: OffsetModel, no_offset):
+    """The fix's spread and ambiguity mass with and without a constant offset.
+
+    The two models of :class:`OffsetModel` are weighed by their evidence, the sum of
+    their likelihoods over the window (the offset model's carries its
+    :attr:`OffsetModel.occam`, the price of a free offset): a surface whose ``msd``
+    minimum is explained without an offset keeps its own spread; one that needs an offset
+    takes the offset model's spread about the no-offset mean, which holds the shift the
+    offset makes in the ``msd`` fix.
+
+    Parameters
+    ----------
+    msd, marginal : numpy.ndarray
+        ``(J, K)`` the ``msd`` surface of the fix and the offset-marginalised cost
+        (:func:`offset_surfaces`), NaN where no valid candidate, ``+inf`` where
+        pruned (a weight that underflows).
+    ox, oy : numpy.ndarray
+        ``(K,)`` and ``(J,)`` candidate offsets, metres.
+    best : tuple of int
+        ``(j, k)`` the fix's candidate.
+    model : OffsetModel
+        Samples, residual variance, the offset's prior and the exclusion radius.
+    no_offset : tuple
+        ``(mean, spread, far)`` of the no-offset model as the fix computed them: its
+        weighted mean offset from the best candidate (metres), its ``(2, 2)`` spread about
+        that mean (m^2) and its mass beyond the radius.
+
+    Returns
+    -------
+    tuple
+        ``(spread, far, p_offset)``: the mixture's ``(2, 2)`` second moment about the
+        no-offset mean (m^2), its mass beyond the radius, and the offset model's
+        probability.
+    """
+    reference = float(np.nanmin(marginal))
+    log_none = _log_evidence(msd, model.factor, reference)
+    log_offset = _log_evidence(marginal, model.factor, reference) + model.occam
+    p_offset = float(np.exp(-np.logaddexp(0.0, log_none - log_offset)))
+    mean0, spread0, far0 = no_offset
+    mx, my, cxx, cyy, cxy, far1 = _moments(
+        marginal, reference, model.factor, ox, oy, best, model.radius
+    )
+    shift = np.array([mx, my]) - mean0
+    spread1 = np.array([[cxx, cxy], [cxy, cyy]]) + np.outer(shift, shift)
+    spread = (1.0 - p_offset) * spread0 + p_offset * spread1
+    return spread, (1.0 - p_offset) * far0 + p_offset * far1, p_offset
+
+
+def offset_surfaces(
+    problem: MatchProblem,
+    ox,
+    oy,
+    weight: float,
+    min_valid_fraction: float = 0.9,
+    route: str = "auto",
+    margin=None,
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """The ``msd`` and the offset-marginalised cost of every candidate, and the route.
+
+    The marginalised cost is ``(1 - weight) msd + weight cmsd`` (:class:`OffsetModel`).
+    The loop route computes both in one pass of squared and plain differences, with
+    branch-and-bound on both at once when ``margin`` is given
+    (:class:`~geofix.match._tercom_loop.JointPrune`: a candidate is ``+inf`` in both only
+    when its weight underflows in both); the FFT route, where faster, its ``msd`` and
+    ``cmsd`` surfaces; the direct route (any other spacing) the same by direct reads.
+
+    Parameters
+    ----------
+    problem : MatchProblem
+        Map, indicated track, heading, beam offsets, measurements.
+    ox, oy : numpy.ndarray
+        Candidate translations along x and y, metres.
+    weight : float
+        Share of the squared mean difference taken out, in ``[0, 1]``.
+    min_valid_fraction : float
+        Candidates with fewer valid map look-ups than this share are NaN.
+    route : str
+        As :func:`tercom_cost_surface`.
+    margin : callable, optional
+        ``margin(best_msd)``, the cost gap beyond which a candidate's weight underflows.
+
+    Returns
+    -------
+    tuple
+        ``(msd, marginal, route)``: two ``(len(oy), len(ox))`` surfaces, map units
+        squared, and the route taken.
+    """
+    samples, values, ocol, orow, kc, kr = _search(problem, ox, oy, route)
+    if route == "direct" or kc is None or kr is None:
+        if route in ("loop", "fft"):
+            raise ConfigError(f"tercom: route {route!r} needs whole-cell, evenly spaced offsets")
+        msd = _direct(values, samples, ocol, orow, "msd", min_valid_fraction)
+        centred = _direct(values, samples, ocol, orow, "cmsd", min_valid_fraction)
+        return msd, (1.0 - weight) * msd + weight * centred, "direct"
+    if route in ("auto", "fft"):
+        window = fft_window(values.shape, samples.col, samples.row, kc, kr)
+        if window is not None and (
+            route == "fft" or _fft_is_faster(samples, kc, kr, window, "msd+cmsd")
+        ):
+            threads = numba.get_num_threads()
+            msd = fft_cost(values, window, samples.h, kc, kr, "msd", threads)
+            centred = fft_cost(values, window, samples.h, kc, kr, "cmsd", threads)
+            if msd is not None and centred is not None:
+                return msd, (1.0 - weight) * msd + weight * centred, "fft"
+        if route == "fft":
+            raise ConfigError("tercom: route 'fft' needs a window on finite map data and not 'mad'")
+    need = float(min_valid_fraction) * samples.h.size
+    prune = None
+    if margin is not None:
+
+        def exact(j, k):
+            costs = _at_candidate(exact_marginal, values, samples, kc, kr, j, k, weight, need)
+            return np.where(np.isfinite(costs[:, 0]), costs[:, 0], np.inf)
+
+        prune = JointPrune(_information_order(values, samples), exact, margin, weight)
+    sums, count, alive = loop_sums(
+        values, samples.col, samples.row, samples.h, kc, kr, MARGINAL, prune
+    )
+    msd = marginal_cost(sums, count, alive, need, 0.0)
+    return msd, marginal_cost(sums, count, alive, need, weight), "loop"
+
+
+def _log_evidence(cost, factor, reference) -> float:
+    """``log sum exp(-factor (cost - reference))`` over the finite candidates."""
+    finite = np.isfinite(cost)
+    return float(logsumexp(-factor * (cost[finite] - reference))) if finite.any() else -np.inf
+
+
+def _moments(cost, low, factor, ox, oy, best, radius):
+    """:func:`surface_moments` of a surface at the best candidate ``(j, k)``."""
+    return surface_moments(
+        np.ascontiguousarray(cost, dtype=float),
+        low,
+        factor,
+        np.ascontiguousarray(ox, dtype=float),
+        np.ascontiguousarray(oy, dtype=float),
+        int(best[0]),
+        int(best[1]),
+        radius,
+    )
 
 
 ROUTES = ("auto", "loop", "fft", "direct")
@@ -314,7 +584,7 @@ def pruning_holds(effect: float, candidates: int) -> bool:
 # and log2 of the transform size.
 _LOOP_S_PER_READ = 0.5e-9
 _FFT_S_PER_POINT_LOG = 1.0e-9
-_FFT_TRANSFORMS = {"msd": 13, "cor": 3, "ncor": 15, "cmsd": 15}
+_FFT_TRANSFORMS = {"msd": 13, "cor": 3, "ncor": 15, "cmsd": 15, "msd+cmsd": 28}
 
 
 @dataclass(frozen=True)
@@ -389,14 +659,7 @@ def tercom_cost_surface(
 
 def _surface(problem, ox, oy, metric, min_valid_fraction, route, prune_margin):
     """Cost surface and the route that computed it."""
-    if route not in ROUTES:
-        raise ConfigError(f"tercom: route must be one of {ROUTES}, got {route!r}")
-    samples = _samples(problem)
-    grid = problem.grid
-    values = np.ascontiguousarray(grid.values)
-    ocol = np.asarray(ox, dtype=float) / grid.dx
-    orow = np.asarray(oy, dtype=float) / grid.dy
-    kc, kr = whole_cell_shifts(ocol), whole_cell_shifts(orow)
+    samples, values, ocol, orow, kc, kr = _search(problem, ox, oy, route)
     whole = kc is not None and kr is not None
     if route in ("loop", "fft") and not whole:
         raise ConfigError(f"tercom: route {route!r} needs whole-cell, evenly spaced offsets")
@@ -413,6 +676,21 @@ def _surface(problem, ox, oy, metric, min_valid_fraction, route, prune_margin):
     if route == "fft":
         raise ConfigError("tercom: route 'fft' needs a window on finite map data and not 'mad'")
     return _loop(values, samples, kc, kr, metric, min_valid_fraction, prune_margin), "loop"
+
+
+def _search(problem: MatchProblem, ox, oy, route: str) -> tuple:
+    """The samples, map values, candidate offsets in cells and their whole-cell shifts.
+
+    Returns ``(samples, values, ocol, orow, kc, kr)``; ``kc``/``kr`` None where the
+    offsets are not whole, evenly spaced cells. ConfigError for an unknown route.
+    """
+    if route not in ROUTES:
+        raise ConfigError(f"tercom: route must be one of {ROUTES}, got {route!r}")
+    grid = problem.grid
+    ocol = np.asarray(ox, dtype=float) / grid.dx
+    orow = np.asarray(oy, dtype=float) / grid.dy
+    values = np.ascontiguousarray(grid.values)
+    return _samples(problem), values, ocol, orow, whole_cell_shifts(ocol), whole_cell_shifts(orow)
 
 
 def _fft_is_faster(samples, kc, kr, window, metric) -> bool:
@@ -435,16 +713,7 @@ def _loop(values, samples, kc, kr, metric, min_valid_fraction, prune_margin) -> 
         need = float(min_valid_fraction) * n
 
         def exact(j, k):
-            cost = exact_costs(
-                values,
-                samples.col,
-                samples.row,
-                samples.h,
-                kc[k : k + 1],
-                kr[j : j + 1],
-                mode,
-                need,
-            )[0]
+            cost = _at_candidate(exact_costs, values, samples, kc, kr, j, k, mode, need)[0]
             return float(cost) if np.isfinite(cost) else np.inf
 
         prune = (order, exact, prune_margin)
@@ -454,6 +723,11 @@ def _loop(values, samples, kc, kr, metric, min_valid_fraction, prune_margin) -> 
     cost = _finish(sums, count, n, mode, min_valid_fraction)
     cost[~alive] = np.inf
     return cost
+
+
+def _at_candidate(kernel, values, samples, kc, kr, j, k, *args):
+    """``kernel`` (:func:`exact_costs`, :func:`exact_marginal`) at the one candidate ``(j, k)``."""
+    return kernel(values, samples.col, samples.row, samples.h, kc[k : k + 1], kr[j : j + 1], *args)
 
 
 def _information_order(values, samples) -> np.ndarray:

@@ -83,7 +83,7 @@ class NavigatorSettings:
         map (tide, sound speed, map datum, a gravimeter's offset), map units. 0
         (default): no offset for a filter of ``map_model`` ``exact`` or ``adaptive``, the
         map's default for one of ``imperfect`` (:meth:`for_map_model`); None:
-        :func:`geofix.filters.nuisance.default_offset_std` of the map (5 m plus 0.2 % of
+        :func:`geofix.maps.offset.default_offset_std` of the map (5 m plus 0.2 % of
         the median depth on a depth map, 5 mGal on a gravity map).
         The offset is a random-walk state ``N(b, P)`` estimated with the position
         (:class:`geofix.filters.nuisance.CommonOffset`): every ping's values are taken
