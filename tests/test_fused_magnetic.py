@@ -9,8 +9,8 @@ import xarray as xr
 import geofix
 from geofix.errors import ConfigError
 from geofix.evaluate.runner import method_rng, run_trial
-from geofix.maps.offset import default_offset_std
 from geofix.maps.grid import Grid
+from geofix.maps.offset import default_offset_std
 from geofix.methods import parse_method_spec
 from geofix.sim import scenario_from_dict, simulate_trial
 

@@ -11,9 +11,9 @@ import pytest
 import xarray as xr
 
 from geofix.errors import GeofixWarning, MapError
-from geofix.maps.offset import default_offset_std
 from geofix.logs.mgd77 import field_segments, pick_segment
 from geofix.maps import Grid, load_grid
+from geofix.maps.offset import default_offset_std
 from geofix.replay import nees, replay, window_mission
 
 

@@ -16,7 +16,7 @@ import numba.np.ufunc.parallel as parallel
 from geofix import _threads
 from geofix.maps.synthetic import fractal_terrain
 from geofix.match import tercom
-from geofix.match._tercom_loop import loop_sums
+from geofix.match._tercom_loop import MARGINAL, loop_sums
 rng = np.random.default_rng(4)
 grid = fractal_terrain((120, 120), 10.0, rng=rng, std=15.0)
 col = 40.0 + np.cumsum(rng.uniform(0.3, 0.9, 30))
@@ -27,9 +27,16 @@ kr = np.arange(-15, 16, dtype=np.int64)
 values = np.ascontiguousarray(grid.values)
 with _threads.serial_kernels_only():
     serial = loop_sums(values, col, row, h, kc, kr, 0)[0]
+    serial_marginal = loop_sums(values, col, row, h, kc, kr, MARGINAL)[0]
 started_by_serial = parallel._is_initialized
 both = loop_sums(values, col, row, h, kc, kr, 0)[0]
-print(started_by_serial, parallel._is_initialized, np.array_equal(serial, both))
+both_marginal = loop_sums(values, col, row, h, kc, kr, MARGINAL)[0]
+print(
+    started_by_serial,
+    parallel._is_initialized,
+    np.array_equal(serial, both),
+    np.array_equal(serial_marginal, both_marginal),
+)
 """
 
 
@@ -39,7 +46,7 @@ def test_serial_twin_gives_the_parallel_numbers_without_starting_the_pool():
         [sys.executable, "-c", _SCRIPT], env=env, capture_output=True, text=True, timeout=300
     )
     assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["False", "True", "True"]
+    assert done.stdout.split() == ["False", "True", "True", "True"]
 
 
 def test_every_parallel_kernel_has_a_serial_twin():

@@ -137,3 +137,20 @@ def test_mad_and_cmsd_weigh_no_offset():
     problem, _ = _biased(4, 6.0)
     for metric in ("mad", "cmsd"):
         assert Tercom(metric=metric).match(problem).diagnostics["offset_probability"] == 0.0
+
+
+def test_the_setting_parses_from_a_method_spec():
+    from geofix.methods import parse_method_spec
+
+    assert parse_method_spec("tercom:offset_std=0").offset_std == 0
+    assert parse_method_spec("tercom:offset_std=2.5").offset_std == 2.5
+    assert parse_method_spec("tercom").offset_std is None
+
+
+def test_a_noise_beyond_the_float_range_weighs_no_offset_and_flags_the_fix():
+    problem, _ = _biased(4, 1.0)
+    huge = dataclasses.replace(problem, noise_std=1e300)
+    with np.errstate(over="ignore"):
+        fix = Tercom().match(huge)
+    assert fix.ambiguous and fix.diagnostics["offset_probability"] == 0.0
+    assert np.isfinite(fix.covariance).all()

@@ -276,8 +276,11 @@ class Tercom:
         prior = default_offset_std(problem.grid) if self.offset_std is None else self.offset_std
         if prior <= 0:
             return None
+        noise_var = _noise_var(problem)
+        if not np.isfinite(noise_var):
+            return None
         samples = max(int(np.isfinite(problem.measured).sum()), 1)
-        return prior**2 / (prior**2 + max(problem.noise_std**2, 1e-12) / samples)
+        return prior**2 / (prior**2 + max(noise_var, 1e-12) / samples)
 
     def _design_effect(self, problem: MatchProblem, track: np.ndarray) -> float:
         """The residuals' design effect at the fix (1 unless ``correlated_residuals``)."""
@@ -396,15 +399,20 @@ class OffsetModel:
         """
         grid = problem.grid
         j, k = int(best[0]), int(best[1])
-        centred = _direct(
+        samples_at = _samples(problem)
+        # weight 1: the msd less the squared mean difference, the cmsd (one compiled
+        # serial read, the same on any number of threads)
+        centred = exact_marginal(
             np.ascontiguousarray(grid.values),
-            _samples(problem),
+            samples_at.col,
+            samples_at.row,
+            samples_at.h,
             np.array([ox[k] / grid.dx]),
             np.array([oy[j] / grid.dy]),
-            "cmsd",
+            1.0,
             0.0,
-        )[0, 0]
-        var = max(problem.noise_std**2, float(np.nan_to_num(centred, nan=0.0)), 1e-12)
+        )[1, 0]
+        var = max(_noise_var(problem), float(np.nan_to_num(centred, nan=0.0)), 1e-12)
         return cls(float(samples), var, float(offset_std), float(radius))
 
     @property
@@ -519,10 +527,10 @@ def offset_surfaces(
             route == "fft" or _fft_is_faster(samples, kc, kr, window, "msd+cmsd")
         ):
             threads = numba.get_num_threads()
-            msd = fft_cost(values, window, samples.h, kc, kr, "msd", threads)
-            centred = fft_cost(values, window, samples.h, kc, kr, "cmsd", threads)
-            if msd is not None and centred is not None:
-                return msd, (1.0 - weight) * msd + weight * centred, "fft"
+            plain = fft_cost(values, window, samples.h, kc, kr, "msd", threads)
+            less = fft_cost(values, window, samples.h, kc, kr, "cmsd", threads)
+            if plain is not None and less is not None:
+                return plain, (1.0 - weight) * plain + weight * less, "fft"
         if route == "fft":
             raise ConfigError("tercom: route 'fft' needs a window on finite map data and not 'mad'")
     need = float(min_valid_fraction) * samples.h.size
@@ -833,5 +841,11 @@ _COST_KERNEL = twins(_cost_kernel, cache=True)
 def _likelihood_scale(metric: str, problem: MatchProblem, best: float) -> float:
     """Scale of the pseudo-likelihood: Gaussian (``msd``) or Laplace (``mad``)."""
     if metric == "msd":
-        return 2.0 * max(problem.noise_std**2, best, 1e-12)
+        return 2.0 * max(_noise_var(problem), best, 1e-12)
     return max(problem.noise_std / np.sqrt(2.0), best, 1e-12)
+
+
+def _noise_var(problem: MatchProblem) -> float:
+    """The sensor's noise variance, map units squared (inf beyond the float range)."""
+    with np.errstate(over="ignore"):
+        return float(np.square(np.float64(problem.noise_std)))
