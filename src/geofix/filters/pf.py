@@ -370,8 +370,8 @@ class Pf(ParticleSettings):
     offset_pool : float
         As :class:`ParticleSettings`'s, 2 particle spacings by default: on the real ship
         tracks against ETOPO1 at 10' at seeds held out from the choice, the unpooled
-        filter claims ``converged`` with its error beyond 3 sigma on 69 of 2072 pings,
-        pooled on none of 1800 (``pf:offset_pool=0`` is the unpooled filter; RESULTS,
+        filter claims ``converged`` with its error beyond 3 sigma on 41 of 2061 pings,
+        pooled on none of 1819 (``pf:offset_pool=0`` is the unpooled filter; RESULTS,
         *Real ship tracks*).
 
     References
