@@ -71,9 +71,7 @@ def test_the_long_track_claims_nothing_its_covariance_does_not_hold(long_replay)
     strict=True,
     reason="against a 10' grid one depth a minute holds the position little better than the "
     "INS: pmf follows the INS within its covariance (median NEES 1.3) and ends 36.8 km off, "
-    "the INS alone 34.9 km; over replay seeds 1-6 (the same INS drift) pmf, mpf and pf end "
-    "better than the INS at seeds 2, 4, 5 and 6 (21.9-31.3 km) and worse at 1 and 3 "
-    "(36.7-43.3 km); at seed 1 one correction of 3 km inside a 15 km sigma makes the gap",
+    "the INS alone 34.9 km",
 )
 def test_the_long_track_ends_no_worse_than_the_ins(long_replay):
     inputs, ests = long_replay
