@@ -13,6 +13,7 @@ import xarray as xr
 from geofix.errors import GeofixWarning, MapError
 from geofix.logs.mgd77 import field_segments, pick_segment
 from geofix.maps import Grid, load_grid
+from geofix.maps import offset as offset_module
 from geofix.maps.offset import default_offset_std
 from geofix.replay import nees, replay, window_mission
 
@@ -32,6 +33,22 @@ def test_the_stated_level_replaces_the_map_kind_s_offset_prior():
     for bad in (-1.0, float("nan"), "level"):
         with pytest.raises(MapError, match="offset_std"):
             default_offset_std(_stated(gravity, bad))
+
+
+def test_a_depth_map_s_median_is_read_once_and_kept_per_map(monkeypatch):
+    # a matcher asks for the prior at every fix: the median over a large map is taken
+    # once per map, and a second map (other depths) gets its own
+    values = np.full((4, 5), -2000.0)
+    values[0, 0], values[1, 1] = np.nan, -10.0
+    deep, shallow = Grid(values, 0.0, 0.0, 10.0, 10.0), Grid(values / 10, 0.0, 0.0, 10.0, 10.0)
+    calls = []
+    median = np.median
+    monkeypatch.setattr(offset_module.np, "median", lambda a: calls.append(1) or median(a))
+    assert default_offset_std(deep) == pytest.approx(5.0 + 0.002 * 2000.0)
+    assert default_offset_std(deep) == pytest.approx(5.0 + 0.002 * 2000.0)
+    assert len(calls) == 1
+    assert default_offset_std(shallow) == pytest.approx(5.0 + 0.002 * 200.0)
+    assert len(calls) == 2
 
 
 def test_a_map_file_states_its_level_in_an_attribute(tmp_path):

@@ -9,6 +9,8 @@ settings leave it open.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from geofix.maps.grid import Grid
@@ -46,7 +48,22 @@ def default_offset_std(grid: Grid) -> float:
         return GRAVITY_OFFSET_STD_MGAL
     if grid.kind == "magnetic":
         return 20.0  # nT
-    values = np.asarray(grid.values, dtype=float)
-    finite = values[np.isfinite(values)]
-    depth = float(np.median(np.abs(finite))) if finite.size else 0.0
-    return DEPTH_OFFSET_STD_M + DEPTH_OFFSET_SHARE * depth
+    return DEPTH_OFFSET_STD_M + DEPTH_OFFSET_SHARE * median_depth(grid)
+
+
+_MEDIAN_DEPTHS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def median_depth(grid: Grid) -> float:
+    """Median absolute value of the map's valid cells (0 when none), map units.
+
+    Read once per map and remembered while the map lives (its values are read-only): a
+    matcher asks at every fix, and on a large map the median costs more than the search.
+    """
+    known = _MEDIAN_DEPTHS.get(grid)
+    if known is None:
+        values = np.asarray(grid.values, dtype=float)
+        finite = values[np.isfinite(values)]
+        known = float(np.median(np.abs(finite))) if finite.size else 0.0
+        _MEDIAN_DEPTHS[grid] = known
+    return known

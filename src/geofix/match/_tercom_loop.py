@@ -412,7 +412,8 @@ class JointPrune:
     order : numpy.ndarray
         The sample order, most informative first.
     exact_costs : callable
-        ``exact_costs(j, k)`` the complete ``(msd, marginal)`` of one candidate (inf: none).
+        ``exact_costs(j, k)`` the complete ``(2, q)`` ``msd`` and marginal of the ``q``
+        candidates of row and column indices ``j``, ``k`` (int arrays; inf: none).
     margin : callable
         ``margin(best_msd)``, the cost gap beyond which a candidate's weight underflows in
         either model.
@@ -429,10 +430,11 @@ class JointPrune:
 
     def update(self, sums, count, left, alive, lo, hi) -> None:
         """Improve both bests from the likeliest candidates, then drop (in place)."""
-        for index in _lowest_joint_means(sums, count, alive, lo, hi, _PROBES, self.weight):
-            if index >= 0:
-                j, k = divmod(int(index), sums.shape[2])
-                self.best = np.minimum(self.best, self.exact_costs(j, k))
+        index = _lowest_joint_means(sums, count, alive, lo, hi, _PROBES, self.weight)
+        index = np.unique(index[index >= 0])
+        if index.size:
+            j, k = np.divmod(index, sums.shape[2])
+            self.best = np.minimum(self.best, self.exact_costs(j, k).min(axis=1))
         if np.isfinite(self.best).all():
             threshold = self.best + self.margin(float(self.best[0]))
             _joint_prune_pass(sums, count, float(left), alive, threshold, self.weight, lo, hi)

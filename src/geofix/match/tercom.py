@@ -538,8 +538,10 @@ def offset_surfaces(
     if margin is not None:
 
         def exact(j, k):
-            costs = _at_candidate(exact_marginal, values, samples, kc, kr, j, k, weight, need)
-            return np.where(np.isfinite(costs[:, 0]), costs[:, 0], np.inf)
+            costs = exact_marginal(
+                values, samples.col, samples.row, samples.h, kc[k], kr[j], weight, need
+            )
+            return np.where(np.isfinite(costs), costs, np.inf)
 
         prune = JointPrune(_information_order(values, samples), exact, margin, weight)
     sums, count, alive = loop_sums(
