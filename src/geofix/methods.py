@@ -374,7 +374,13 @@ def _convert_raw(raw: str, default: object, where: str):
         raise ConfigError(f"{where}: cannot read {raw!r} as {type(default).__name__}") from None
 
 
+#: Words a setting whose default is None reads as a bool.
+_BOOL_WORDS = {"true": True, "yes": True, "on": True, "false": False, "no": False, "off": False}
+
+
 def _guess(raw: str):
+    if raw.lower() in _BOOL_WORDS:
+        return _BOOL_WORDS[raw.lower()]
     for kind in (int, float):
         try:
             return kind(raw)

@@ -100,6 +100,23 @@ def check_offset_walk(method: str, walk: float | None) -> None:
         raise ConfigError(f"{method}: offset_walk must be finite and >= 0, got {walk}")
 
 
+def check_offset_per_hypothesis(method: str, value) -> None:
+    """Refuse an ``offset_per_hypothesis`` setting that is not None, True or False.
+
+    Parameters
+    ----------
+    method : str
+        The method's name, for the message.
+    value : object
+        The setting.
+    """
+    if value is not None and not isinstance(value, bool):
+        raise ConfigError(
+            f"{method}: offset_per_hypothesis must be true or false (unset: the default), "
+            f"got {value!r}"
+        )
+
+
 #: Share of each walk's prior probability a hypothesis gets back at every ping, so that a
 #: walk it set aside can return where the map's error changes its character.
 WALK_RETURN = 0.01

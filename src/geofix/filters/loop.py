@@ -91,7 +91,7 @@ class FilterSettings:
         Forgetting factor per ping of the residual scale and the representation share.
     offset_per_hypothesis : bool or None
         A filter that can carries the offset per hypothesis (None: for pings of fewer
-        than three beams).
+        than three beams); a method's own ``offset_per_hypothesis`` is above it.
     max_update_beams : int or None
         Most valid beams of one update (None: every beam of a ping), what the filter is
         sized for (:mod:`geofix.filters.sizing`).
@@ -172,6 +172,9 @@ class FilterStepper:
         walk = getattr(filt, "offset_walk", None)  # the method's own, above the settings'
         if walk is not None:
             settings = replace(settings, depth_bias_walk=float(walk))
+        per_hypothesis = getattr(filt, "offset_per_hypothesis", None)
+        if per_hypothesis is not None:
+            settings = replace(settings, offset_per_hypothesis=bool(per_hypothesis))
         self.settings = settings.for_map_model(filt.map_model)
         if grid.interpolation != self.settings.interpolation:
             grid = replace(grid, interpolation=self.settings.interpolation)
@@ -449,11 +452,15 @@ class FilterStepper:
     def carries_offset(self) -> bool:
         """The filter carries the offset per hypothesis (its own offset states).
 
-        For pings of fewer than three beams, whose offset and position only a profile of
-        several pings separates (decided at the first ping after a reset). A multibeam
-        ping's shape tells the position whatever the offset, and an offset per hypothesis
-        fitted to each ping lets a shift along a slope trade against it on a map whose
-        errors are not one offset, so those pings use the one common offset.
+        By default for pings of fewer than three beams, whose offset and position only a
+        profile of several pings separates (decided at the first ping after a reset). A
+        multibeam ping's shape tells the position whatever the offset, and an offset per
+        hypothesis fitted to each ping lets a shift along a slope trade against it on a
+        map whose errors are not one offset, so by default those pings use the one common
+        offset, marginalised per ping. ``offset_per_hypothesis`` (the settings', or the
+        method's own) says otherwise: on a depth map the multibeam pings' offsets then
+        weigh a faster walk beside the declared one
+        (:func:`~geofix.filters.nuisance.default_fast_offset_walk`).
         """
         return (
             bool(self.filter.carries_offset) and self.offset.active and bool(self._profile_offset)
@@ -474,7 +481,7 @@ class FilterStepper:
             bias_var=self._offset_prior_var,
             bias_walk=self.offset.walk,
             bias_per_hypothesis=True,
-            bias_fast_walk=default_fast_offset_walk(self.grid),
+            bias_fast_walk=default_fast_offset_walk(self.grid, weighed.values.size),
         )
 
     def _with_representation(self, obs: Observation) -> Observation:

@@ -53,6 +53,10 @@ if TYPE_CHECKING:  # annotations only: the filter loop below base.run_filter imp
 #: The second, faster walk rate a gravity map's per-hypothesis offset weighs by default, as
 #: a factor on the declared walk (:func:`default_fast_offset_walk`).
 GRAVITY_FAST_OFFSET_WALK = 10.0
+#: The same for a depth map's per-hypothesis offset on pings of three beams or more
+#: (``offset_per_hypothesis``): across a swath the error of a coarse map is relief below
+#: its cells, which moves the swath's mean level from ping to ping.
+SWATH_FAST_OFFSET_WALK = 10.0
 
 
 MAP_MODELS = ("exact", "adaptive", "imperfect")
@@ -82,16 +86,18 @@ def check_map_model(name: str, value: str) -> None:
         raise ConfigError(f"{name}: map_model must be exact, adaptive or imperfect, got {value!r}")
 
 
-def default_fast_offset_walk(grid: Grid) -> float:
+def default_fast_offset_walk(grid: Grid, beams: int = 1) -> float:
     """The faster offset walk a filter weighs when its settings leave it open.
 
     A factor on the declared walk (:func:`geofix.filters.hypothesis_offset.walk_factors`)
-    for the per-hypothesis offset of pings of one or two beams.
+    for the per-hypothesis offset.
 
     Parameters
     ----------
     grid : Grid
         The prior map: its kind.
+    beams : int
+        Beams of the ping (1: a profile).
 
     Returns
     -------
@@ -100,12 +106,18 @@ def default_fast_offset_walk(grid: Grid) -> float:
         over kilometres (an altimetry grid's), so along a track it reads as an offset
         moving faster than a gravimeter drifts, and the field is smooth enough that the
         position is read from how the readings change rather than their level. A depth
-        map: 0 (the declared rate alone). Its error at a track is mostly relief below
-        its cells (:class:`ProfileRoughness`), which a faster offset would absorb with the
-        relief that tells positions apart. A magnetic map: 0, not yet measured on an
-        imperfect magnetic map.
+        map: for pings of three beams or more :data:`SWATH_FAST_OFFSET_WALK` (a swath's
+        shape tells the position, and its mean level follows the relief below the map's
+        cells from ping to ping), for fewer 0 (the declared rate alone): a profile's error
+        is mostly relief below the map's cells (:class:`ProfileRoughness`), which a
+        faster offset would absorb with the relief that tells positions apart. A magnetic
+        map: 0, not yet measured on an imperfect magnetic map.
     """
-    return GRAVITY_FAST_OFFSET_WALK if grid.kind == "gravity" else 0.0
+    if grid.kind == "gravity":
+        return GRAVITY_FAST_OFFSET_WALK
+    if grid.kind == "depth" and beams >= 3:
+        return SWATH_FAST_OFFSET_WALK
+    return 0.0
 
 
 def unscented_points(mean, cov) -> tuple[np.ndarray, np.ndarray]:
@@ -975,6 +987,7 @@ def correlated_share(offsets, cell: float, step_m: float | None = None) -> float
 __all__ = [
     "GRAVITY_FAST_OFFSET_WALK",
     "MAP_MODELS",
+    "SWATH_FAST_OFFSET_WALK",
     "WHITE_EXCESS",
     "CommonOffset",
     "PointReads",

@@ -71,6 +71,7 @@ from geofix.filters._weights import (
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.hypothesis_offset import (
     HypothesisOffset,
+    check_offset_per_hypothesis,
     check_offset_rates,
     check_offset_walk,
     shared_offsets,
@@ -203,11 +204,12 @@ class ParticleSettings(RecursiveFilter):
         ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
     fast_offset_walk : float or None
         A second, faster walk rate of the per-hypothesis offset (pings of one or two
-        beams), as a factor on the declared walk, each hypothesis weighing both by its own
-        residuals (:func:`geofix.filters.hypothesis_offset.walk_factors`; 0: the declared
+        beams, or every ping with ``offset_per_hypothesis``), as a factor on the declared
+        walk, each hypothesis weighing both by its own residuals
+        (:func:`geofix.filters.hypothesis_offset.walk_factors`; 0: the declared
         rate alone). None (the default): the map kind's
-        (:func:`geofix.filters.nuisance.default_fast_offset_walk`: 10 on a gravity map, 0
-        on a depth or magnetic map).
+        (:func:`geofix.filters.nuisance.default_fast_offset_walk`: 10 on a gravity map and
+        for a depth map's multibeam pings, 0 for its profiles and on a magnetic map).
     offset_walk : float or None
         The common offset's walk, map units squared per second, as
         :class:`geofix.filters.pmf.Pmf`'s: 0 an offset that does not move, None (the
@@ -222,6 +224,13 @@ class ParticleSettings(RecursiveFilter):
         is 2, see :class:`Pf`). A map error
         correlated over more than a swath reads, along one path, as an offset that
         follows a misleading stretch of map; pooled, the neighbours' paths temper it.
+    offset_per_hypothesis : bool or None
+        Carry the common offset per hypothesis on every ping (True), on none (False), or
+        as the stepper's settings say (None, the default: pings of fewer than three
+        beams; :attr:`geofix.filters.loop.FilterStepper.carries_offset`). On a depth map
+        the multibeam pings' offsets then weigh a faster walk beside the declared one
+        (:func:`geofix.filters.nuisance.default_fast_offset_walk`); the section
+        *Imperfect maps* measures it beside the default.
     offset_rates : str
         How the particles weigh the offset's walk rates, as
         :class:`geofix.filters.pmf.Pmf`'s: ``own`` (the default) or ``shared``
@@ -247,6 +256,7 @@ class ParticleSettings(RecursiveFilter):
     offset_walk: float | None = None
     offset_pool: float = 0.0
     offset_rates: str = "own"
+    offset_per_hypothesis: bool | None = None
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.offset_pool) and self.offset_pool >= 0):
@@ -255,6 +265,7 @@ class ParticleSettings(RecursiveFilter):
             walk_factors(self.fast_offset_walk)
         check_offset_walk(self.name, self.offset_walk)
         check_offset_rates(self.name, self.offset_rates)
+        check_offset_per_hypothesis(self.name, self.offset_per_hypothesis)
         name = self.name
         if self.particles < 10 or self.max_particles < self.particles:
             raise ConfigError(

@@ -76,6 +76,7 @@ from geofix.filters._grid_ops import REGRID_COPIES, check_regrid
 from geofix.filters.base import Motion, Observation, RecursiveFilter
 from geofix.filters.hypothesis_offset import (
     HypothesisOffset,
+    check_offset_per_hypothesis,
     check_offset_rates,
     check_offset_walk,
     shared_offsets,
@@ -252,17 +253,25 @@ class Pmf(RecursiveFilter):
         ``adaptive`` or ``exact`` (:data:`geofix.filters.nuisance.MAP_MODELS`).
     fast_offset_walk : float or None
         A second, faster walk rate of the per-hypothesis offset (pings of one or two
-        beams), as a factor on the declared walk, each hypothesis weighing both by its own
-        residuals (:func:`geofix.filters.hypothesis_offset.walk_factors`; 0: the declared
+        beams, or every ping with ``offset_per_hypothesis``), as a factor on the declared
+        walk, each hypothesis weighing both by its own residuals
+        (:func:`geofix.filters.hypothesis_offset.walk_factors`; 0: the declared
         rate alone). None (the default): the map kind's
-        (:func:`geofix.filters.nuisance.default_fast_offset_walk`: 10 on a gravity map, 0
-        on a depth or magnetic map).
+        (:func:`geofix.filters.nuisance.default_fast_offset_walk`: 10 on a gravity map and
+        for a depth map's multibeam pings, 0 for its profiles and on a magnetic map).
     offset_walk : float or None
         Variance the common offset gains per second, map units squared per second (a
         tide, a datum, a gravimeter's drift); 0: an offset that does not move. None (the
         default): the stepper's settings (the navigator's ``depth_bias_walk``, 1e-3).
         Where the offset really is constant, the declared walk widens the covariance
         beyond the errors: the section *Imperfect maps* shows both.
+    offset_per_hypothesis : bool or None
+        Carry the common offset per hypothesis on every ping (True), on none (False), or
+        as the stepper's settings say (None, the default: pings of fewer than three
+        beams; :attr:`geofix.filters.loop.FilterStepper.carries_offset`). On a depth map
+        the multibeam pings' offsets then weigh a faster walk beside the declared one
+        (:func:`geofix.filters.nuisance.default_fast_offset_walk`); the section
+        *Imperfect maps* measures it beside the default.
     offset_rates : str
         How the hypotheses weigh the offset's walk rates
         (:data:`geofix.filters.hypothesis_offset.OFFSET_RATES`): ``own`` (the default),
@@ -310,12 +319,14 @@ class Pmf(RecursiveFilter):
     fast_offset_walk: float | None = None
     offset_walk: float | None = None
     offset_rates: str = "own"
+    offset_per_hypothesis: bool | None = None
 
     def __post_init__(self) -> None:
         if self.fast_offset_walk is not None:
             walk_factors(self.fast_offset_walk)
         check_offset_walk(self.name, self.offset_walk)
         check_offset_rates(self.name, self.offset_rates)
+        check_offset_per_hypothesis(self.name, self.offset_per_hypothesis)
         check_motion_model("pmf", self.model)
         if self.points < 5 or self.points % 2 == 0:
             raise ConfigError(f"pmf: points must be odd and at least 5, got {self.points}")
