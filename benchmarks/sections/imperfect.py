@@ -128,7 +128,6 @@ def build(quick: bool) -> str:
             result = campaign(scen, list(methods), trials=trials, jobs=2)
             cell = float(base.map.resample_m) * (seabed or {}).get("cell_factor", 1)
             bound, aware = _bound_m(scen, trials)
-            best = ("-", float("inf"))
             default_nees, still_nees = [], {}
             chosen = {}
             for spec in methods:
@@ -141,11 +140,10 @@ def build(quick: bool) -> str:
                     still_nees[spec.split(":")[0]] = _number(nees)
                 if spec in DEFAULT_FILTERS:
                     default_nees.append(_number(nees))
-                    if _number(rms) < best[1]:
-                        best = (spec, _number(rms))
+            best = _best(chosen, DEFAULT_FILTERS) or ("-", float("inf"))
             if label == DRAWN_OFFSET_ROW:
                 drawn[name] = (default_nees, _ratio(best[1], aware), still_nees)
-            if name in EXTRA_METHODS and EXTRA_METHODS[name] == PER_HYPOTHESIS:
+            if EXTRA_METHODS.get(name) == PER_HYPOTHESIS:
                 swath[label] = (
                     _best(chosen, DEFAULT_FILTERS),
                     _best(chosen, PER_HYPOTHESIS),
@@ -353,9 +351,13 @@ def _intro(trials: int) -> str:
     )
 
 
-def _best(chosen: dict, specs: tuple) -> tuple:
-    """``(spec, RMS m, NEES, false fixes)`` of the lowest end RMS among ``specs``."""
-    return min((chosen[s] for s in specs if s in chosen), key=lambda c: c[1], default=None)
+def _best(chosen: dict, specs: tuple) -> tuple | None:
+    """``(spec, RMS m, NEES, false fixes)`` of the lowest finite end RMS among ``specs``.
+
+    The first of ``specs`` on a tie; None when none has a finite RMS.
+    """
+    finite = (chosen[s] for s in specs if s in chosen and np.isfinite(chosen[s][1]))
+    return min(finite, key=lambda c: c[1], default=None)
 
 
 def _per_hypothesis_reading(swath: dict) -> str:

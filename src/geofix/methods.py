@@ -353,13 +353,16 @@ def _convert(raw: str, default: object, where: str):
     return value
 
 
+#: Words read as a bool: by a bool setting (and ``1``, ``0``), and by one whose default is None.
+_BOOL_WORDS = {"true": True, "yes": True, "on": True, "false": False, "no": False, "off": False}
+
+
 def _convert_raw(raw: str, default: object, where: str):
     try:
         if isinstance(default, bool):
-            if raw.lower() in ("1", "true", "yes", "on"):
-                return True
-            if raw.lower() in ("0", "false", "no", "off"):
-                return False
+            word = {"1": "true", "0": "false"}.get(raw, raw.lower())
+            if word in _BOOL_WORDS:
+                return _BOOL_WORDS[word]
             raise ValueError(raw)
         if isinstance(default, int):
             return int(raw)
@@ -372,10 +375,6 @@ def _convert_raw(raw: str, default: object, where: str):
         return raw
     except ValueError:
         raise ConfigError(f"{where}: cannot read {raw!r} as {type(default).__name__}") from None
-
-
-#: Words a setting whose default is None reads as a bool.
-_BOOL_WORDS = {"true": True, "yes": True, "on": True, "false": False, "no": False, "off": False}
 
 
 def _guess(raw: str):

@@ -225,12 +225,9 @@ class ParticleSettings(RecursiveFilter):
         correlated over more than a swath reads, along one path, as an offset that
         follows a misleading stretch of map; pooled, the neighbours' paths temper it.
     offset_per_hypothesis : bool or None
-        Carry the common offset per hypothesis on every ping (True), on none (False), or
-        as the stepper's settings say (None, the default: pings of fewer than three
-        beams; :attr:`geofix.filters.loop.FilterStepper.carries_offset`). On a depth map
-        the multibeam pings' offsets then weigh a faster walk beside the declared one
-        (:func:`geofix.filters.nuisance.default_fast_offset_walk`); the section
-        *Imperfect maps* measures it beside the default.
+        Where the particles carry the common offset per hypothesis, as
+        :class:`geofix.filters.pmf.Pmf`'s: every ping (True), none (False), or the
+        stepper's settings (None, the default: pings of fewer than three beams).
     offset_rates : str
         How the particles weigh the offset's walk rates, as
         :class:`geofix.filters.pmf.Pmf`'s: ``own`` (the default) or ``shared``
