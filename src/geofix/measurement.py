@@ -437,21 +437,52 @@ def local_field_reference(
         :data:`OFF_MAP_LOG_LIKELIHOOD` each).
     """
     positions = np.asarray(positions, dtype=float)
+    reads = local_field_reads(grid, positions, heading, offsets, sides)
+    return local_field_from_reads(reads, measured, noise_var, bias_var, shift, modes)
+
+
+def local_field_reads(grid: Grid, positions, heading: float, offsets, sides, predicted=None):
+    """The map reads of :func:`local_field_reference`, for several likelihoods of one ping.
+
+    ``grid``, ``positions``, ``heading``, ``offsets`` and ``sides`` as there;
+    ``predicted``, ``(..., b)`` the reads at ``positions`` (map units) when the caller
+    has them already.
+
+    Returns
+    -------
+    tuple
+        ``(f0 (m, b), own (m, b, 2), shape)``: the reads at the ``m`` flattened
+        hypotheses (map units), the change of each when the hypothesis moves by each side
+        over ``sqrt(12)`` (0 where either read is off the map), and the hypotheses' shape.
+    """
+    positions = np.asarray(positions, dtype=float)
     sides = np.asarray(sides, dtype=float).reshape(2, 2)
-    measured = np.asarray(measured, dtype=float)
-    f0 = predict_measurements(grid, positions, heading, offsets)
-    f0 = f0.reshape(-1, measured.shape[0])
+    beams = np.asarray(offsets).reshape(-1, 2).shape[0]
+    if predicted is None:
+        predicted = predict_measurements(grid, positions, heading, offsets)
+    f0 = np.asarray(predicted, dtype=float).reshape(-1, beams)
     columns = []
     for side in sides:
         moved = predict_measurements(grid, positions + side, heading, offsets)
         d = moved.reshape(f0.shape) - f0
         columns.append(np.where(np.isfinite(d), d, 0.0) / np.sqrt(12.0))
-    own = np.stack(columns, axis=-1)  # (m, b, 2)
+    return f0, np.stack(columns, axis=-1), positions.shape[:-1]
+
+
+def local_field_from_reads(
+    reads, measured, noise_var, bias_var=0.0, shift=None, modes=None
+) -> np.ndarray:
+    """:func:`local_field_reference` from its reads (:func:`local_field_reads`).
+
+    Parameters are those of :func:`local_field_reference` but the reads; returns the
+    same ``(...)`` log-likelihoods.
+    """
+    f0, own, shape = reads
+    measured = np.asarray(measured, dtype=float)
     if shift is not None:
         f0 = f0 + np.asarray(shift, dtype=float).reshape(-1, 1)
     common = _with_offset(modes, bias_var, measured.shape[0])
-    ll = low_rank_log_likelihood(f0, measured, noise_var, common, own)
-    return ll.reshape(positions.shape[:-1])
+    return low_rank_log_likelihood(f0, measured, noise_var, common, own).reshape(shape)
 
 
 def shift_field_variance(
@@ -923,7 +954,8 @@ def low_rank_log_likelihood(predicted, measured, noise_var, common=None, own=Non
     parts_u = []
     if own is not None:
         own = np.asarray(own, dtype=float)
-        parts_u.append(np.einsum("mbc,mb->mc", own, w * r))
+        weighted = (own * w[..., None]).transpose(0, 2, 1)  # (m, c', b): Z_own^T W
+        parts_u.append((weighted @ r[..., None])[..., 0])
     if common is not None:
         common = np.asarray(common, dtype=float).reshape(beams, -1)
         parts_u.append((w * r) @ common)
@@ -931,13 +963,13 @@ def low_rank_log_likelihood(predicted, measured, noise_var, common=None, own=Non
     if not parts_u:
         return (-0.5 * quad + OFF_MAP_LOG_LIKELIHOOD * off_map).reshape(shape)
     u = np.concatenate(parts_u, axis=-1)
-    if own is not None and common is not None:
-        own_common = np.einsum("mbc,mb,bd->mcd", own, w, common)
-        top = np.concatenate([np.einsum("mbc,mb,mbd->mcd", own, w, own), own_common], axis=2)
-        bottom = np.concatenate([own_common.transpose(0, 2, 1), _gram(w, common)], axis=2)
-        gram = np.concatenate([top, bottom], axis=1)
-    elif own is not None:
-        gram = np.einsum("mbc,mb,mbd->mcd", own, w, own)
+    if own is not None:
+        gram = weighted @ own
+        if common is not None:
+            own_common = weighted @ common
+            top = np.concatenate([gram, own_common], axis=2)
+            bottom = np.concatenate([own_common.transpose(0, 2, 1), _gram(w, common)], axis=2)
+            gram = np.concatenate([top, bottom], axis=1)
     else:
         gram = _gram(w, common)
     inner = np.eye(u.shape[-1]) + gram

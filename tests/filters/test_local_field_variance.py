@@ -184,3 +184,38 @@ def test_node_grid_local_is_the_reference(inside):
     reference = local_field_reference(grid, xy, 0.3, offsets, measured, var, sides)
     np.testing.assert_allclose(fused, reference, rtol=1e-9, atol=1e-6)
     assert (fused < -1e5).any() != inside  # off-map beams present only when not inside
+
+
+@pytest.mark.parametrize("spacing", [100.0, 0.0])
+def test_several_walk_rates_read_the_map_once_with_each_rate_s_numbers(spacing):
+    """A particle's likelihood under its walk rates: each rate's, as if computed alone.
+
+    A share one map cell across takes each particle's own field variation; a dense set
+    (spacing 0) none.
+    """
+    from scipy.special import logsumexp
+
+    from geofix.filters.hypothesis_offset import HypothesisOffset
+
+    grid, offsets, measured, nodes = _rough_and_flat()  # 100 m map cells
+    rng = np.random.default_rng(3)
+    points = nodes[:1] + rng.uniform(-150.0, 150.0, (12, 2))
+    obs = Observation(measured, nodes[0], 0.0, offsets, 4.0, 0)
+    means = rng.normal(0.0, 2.0, (2, points.shape[0]))
+    log_prob = np.log(np.stack([np.full(12, 0.3), np.full(12, 0.7)]))
+    offset = HypothesisOffset(means, np.array([0.5, 3.0]), np.array([1e-3, 1e-2]), log_prob)
+    filt = Pf(field_variance="local")
+    weights = np.full(12, -np.log(12))
+    state = PfState(points, weights, grid.cell_size, spacing=spacing, offset=offset)
+    got = particle_log_likelihood(filt, grid, state, obs, rng)
+    args = (grid, points, 0.0, offsets, measured, 4.0)
+    each = []
+    for var, mean in zip(offset.variances, means, strict=True):
+        if spacing > 0:
+            each.append(local_field_log_likelihood(*args, 100.0 * np.eye(2), var, mean))
+        else:
+            each.append(hypotheses_log_likelihood(*args, var, mean))
+    want = logsumexp(np.stack(each) + log_prob, axis=0)
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    # the rates do differ: a mixture, not one rate's numbers twice
+    assert np.max(np.abs(each[0] - each[1])) > 0.1

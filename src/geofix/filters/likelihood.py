@@ -33,7 +33,9 @@ from geofix.filters.hypothesis_offset import HypothesisOffset
 from geofix.maps.grid import Grid
 from geofix.measurement import (
     hypotheses_log_likelihood,
+    local_field_from_reads,
     local_field_log_likelihood,
+    local_field_reads,
     log_likelihood,
     node_grid_local_log_likelihood,
     node_grid_log_likelihood,
@@ -141,17 +143,36 @@ class TerrainLikelihood:
         if self.discretisation_noise and spacing > 0 and not local:
             var = var + spread_field_variance(grid, positions, spacing, obs, rng)
 
-        def given(bias_var, shift) -> np.ndarray:
-            if local:
-                sides = spacing * np.eye(2)
-                return local_field_log_likelihood(
-                    grid, positions, *args, var, sides, bias_var, shift, modes
-                )
-            return hypotheses_log_likelihood(grid, positions, *args, var, bias_var, shift, modes)
+        if offset is None or offset.models == 1:
 
-        if offset is None:
-            return given(obs.bias_var, None)
-        return offset.marginal(given)  # each particle's own offsets, N(b_ik, P_k)
+            def given(bias_var, shift) -> np.ndarray:
+                if local:
+                    sides = spacing * np.eye(2)
+                    return local_field_log_likelihood(
+                        grid, positions, *args, var, sides, bias_var, shift, modes
+                    )
+                return hypotheses_log_likelihood(
+                    grid, positions, *args, var, bias_var, shift, modes
+                )
+
+            if offset is None:
+                return given(obs.bias_var, None)
+            return offset.marginal(given)  # each particle's own offsets, N(b, P)
+        # several walk rates: the map read once for all of them
+        if local:
+            reads = local_field_reads(
+                grid, positions, obs.heading, obs.offsets, spacing * np.eye(2)
+            )
+        else:
+            predicted = predict_measurements(grid, positions, obs.heading, obs.offsets)
+
+        def given_rate(bias_var, shift) -> np.ndarray:
+            if local:
+                return local_field_from_reads(reads, obs.values, var, bias_var, shift, modes)
+            shifted = predicted + np.asarray(shift, dtype=float)[..., None]
+            return log_likelihood(shifted, obs.values, var, bias_var, modes)
+
+        return offset.marginal(given_rate)  # each particle's own offsets, N(b_ik, P_k)
 
     def nodes(
         self, grid: Grid, obs: Observation, state: PmfState
@@ -234,12 +255,14 @@ class TerrainLikelihood:
         """
         xy = ops.node_positions(*state.frame, state.shape)
         predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
+        if local:
+            sides = (state.axes * state.spacing).T
+            reads = local_field_reads(grid, xy, obs.heading, obs.offsets, sides, predicted)
 
         def given(bias_var, shift) -> np.ndarray:
             if local:
-                sides = (state.axes * state.spacing).T
-                args = (obs.heading, obs.offsets, obs.values, obs.noise_var, sides)
-                return local_field_log_likelihood(grid, xy, *args, bias_var, shift, obs.map_modes)
+                args = (obs.values, obs.noise_var, bias_var, shift, obs.map_modes)
+                return local_field_from_reads(reads, *args)
             shifted = predicted + shift[..., None]
             var = obs.noise_var
             if self.discretisation_noise:
