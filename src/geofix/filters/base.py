@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from geofix.filters.loop import FilterSettings, FilterStepper
 from geofix.filters.state import state_mode
@@ -155,8 +156,15 @@ class RecursiveFilter:
         return False
 
     def match(self, problem: MatchProblem, rng: np.random.Generator) -> Fix:
-        """Run the filter over the whole problem and return its estimate at every sample."""
-        return run_filter(self, problem, rng)
+        """Run the filter over the whole problem and return its estimate at every sample.
+
+        BLAS runs on one thread: the filters' products are small or tall and thin (a
+        hypothesis's few columns against its beams, ``M x d`` by ``d x d``), where threads
+        gain nothing and a multi-threaded BLAS on a busy machine (a campaign's other
+        processes) makes them several times slower.
+        """
+        with threadpool_limits(limits=1, user_api="blas"):
+            return run_filter(self, problem, rng)
 
     def is_ambiguous(self, state) -> bool:
         """Integrity flag of a state (default: never)."""

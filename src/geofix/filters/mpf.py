@@ -93,7 +93,6 @@ from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from geofix.errors import ConfigError, MatchError
 from geofix.filters._fields import (
@@ -246,16 +245,6 @@ class Mpf(ParticleSettings):
             )
 
     # ------------------------------------------------------------------ protocol
-    def match(self, problem: MatchProblem, rng: np.random.Generator):
-        """Run the filter with BLAS on one thread.
-
-        The per-particle products are tall and thin (``M x d`` by ``d x d``): threads gain
-        nothing there, and a multi-threaded BLAS on a busy machine makes them many times
-        slower.
-        """
-        with threadpool_limits(limits=1, user_api="blas"):
-            return super().match(problem, rng)
-
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> MpfState:
         """A stratified sample of the error state's position prior, Kalman means given it.
 
