@@ -407,7 +407,8 @@ class FilterStepper:
                 self._learn_modes(weighed, prior_mean, prior_cov)
             if self._ping_variances is not None:
                 declared, extra = self._ping_variances
-                self._share = self._share.updated(reads, declared, extra, relative.bias_var)
+                across = correlated_share(relative.offsets, self.grid.cell_size)
+                self._share = self._share.updated(reads, declared, extra, relative.bias_var, across)
             self.scale = self.scale.updated(reads, relative.bias_var)
         if not self.offset.active:
             return

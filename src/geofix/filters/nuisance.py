@@ -434,6 +434,10 @@ def _innovations(reads: PointReads, bias_var: float) -> tuple[np.ndarray, np.nda
     return (excess, explained) if np.isfinite(excess).all() else None
 
 
+#: Least share at which :class:`RepresentationShare` weighs the innovations (the prior's).
+SHARE_WEIGHT_FLOOR = 1.0
+
+
 @dataclass(frozen=True)
 class RepresentationShare:
     """The share ``c`` of the representation-error layer the innovations support.
@@ -451,8 +455,13 @@ class RepresentationShare:
     ``c = num / den`` clipped to ``[0, ceiling]``. A filter starts as cautious as the layer
     and keeps the information a map that matches the seabed better gives. (The likelihood
     then counts the beams that share one map error once: ``c Q_b`` times
-    :func:`correlated_share`.) The innovations' weights use the share so far; the per-beam
-    excess is a noisy measure, so the share moves over tens of pings, not one.
+    :func:`correlated_share`.) The innovations' weights use the share so far, but never
+    below :data:`SHARE_WEIGHT_FLOOR`: at a share near zero ``V_b`` is the sensor's
+    variance alone and the pings seen then would weigh thousands of times the rest for as
+    long as the running sums remember them. A ping's sums are divided by the beams that
+    share one map error across its swath (``counted``), as its likelihood counts them: its
+    beams' excesses are not independent measures of ``c``. The per-beam excess is a noisy
+    measure, so the share moves over tens of pings, not one.
 
     Parameters
     ----------
@@ -480,7 +489,12 @@ class RepresentationShare:
         return float(np.clip(self.num / self.den, 0.0, self.ceiling)) if self.den > 0 else 1.0
 
     def updated(
-        self, reads: PointReads | None, declared, extra, bias_var: float
+        self,
+        reads: PointReads | None,
+        declared,
+        extra,
+        bias_var: float,
+        counted: float = 1.0,
     ) -> RepresentationShare:
         """Fold in a ping's innovations (read before its update).
 
@@ -493,6 +507,9 @@ class RepresentationShare:
             ``Q_b`` (before the share), map units squared.
         bias_var : float
             Variance of the common offset the values are relative to.
+        counted : float
+            Beams per independent map error across the ping (:func:`correlated_share`
+            without the track's part; at least 1): the ping's sums are divided by it.
         """
         if reads is None or reads.used is None:
             return self
@@ -504,10 +521,10 @@ class RepresentationShare:
         q = np.broadcast_to(np.asarray(extra, dtype=float), reads.used.shape)[reads.used]
         if not q.any():
             return self
-        v2 = (r + self.value * q + explained) ** 2
-        lam = self.forgetting
-        num = lam * self.num + float(np.sum(q * (excess - r) / v2))
-        den = lam * self.den + float(np.sum(q * q / v2))
+        v2 = (r + max(self.value, SHARE_WEIGHT_FLOOR) * q + explained) ** 2
+        lam, per = self.forgetting, 1.0 / max(float(counted), 1.0)
+        num = lam * self.num + per * float(np.sum(q * (excess - r) / v2))
+        den = lam * self.den + per * float(np.sum(q * q / v2))
         if not (np.isfinite(num) and np.isfinite(den)):
             return self
         return replace(self, num=num, den=den)
@@ -987,6 +1004,7 @@ def correlated_share(offsets, cell: float, step_m: float | None = None) -> float
 __all__ = [
     "GRAVITY_FAST_OFFSET_WALK",
     "MAP_MODELS",
+    "SHARE_WEIGHT_FLOOR",
     "SWATH_FAST_OFFSET_WALK",
     "WHITE_EXCESS",
     "CommonOffset",
