@@ -444,9 +444,20 @@ def local_field_reference(
 def local_field_reads(grid: Grid, positions, heading: float, offsets, sides, predicted=None):
     """The map reads of :func:`local_field_reference`, for several likelihoods of one ping.
 
-    ``grid``, ``positions``, ``heading``, ``offsets`` and ``sides`` as there;
-    ``predicted``, ``(..., b)`` the reads at ``positions`` (map units) when the caller
-    has them already.
+    Parameters
+    ----------
+    grid : Grid
+        The map (any ``interpolation``).
+    positions : numpy.ndarray
+        ``(..., 2)`` the hypotheses, metres.
+    heading : float
+        Radians clockwise from north.
+    offsets : numpy.ndarray
+        ``(b, 2)`` body-frame beam offsets, metres.
+    sides : numpy.ndarray
+        ``(2, 2)`` the sides of a hypothesis's share as rows, metres.
+    predicted : numpy.ndarray, optional
+        ``(..., b)`` the reads at ``positions`` when the caller has them, map units.
 
     Returns
     -------
@@ -474,8 +485,25 @@ def local_field_from_reads(
 ) -> np.ndarray:
     """:func:`local_field_reference` from its reads (:func:`local_field_reads`).
 
-    Parameters are those of :func:`local_field_reference` but the reads; returns the
-    same ``(...)`` log-likelihoods.
+    Parameters
+    ----------
+    reads : tuple
+        What :func:`local_field_reads` returns for the ping.
+    measured : numpy.ndarray
+        ``(b,)`` measured values (NaN = missing beam), map units.
+    noise_var : float or numpy.ndarray
+        Per-beam variance, map units squared.
+    bias_var : float
+        Variance of an offset common to every beam (0: none), map units squared.
+    shift : numpy.ndarray, optional
+        ``(...)`` each hypothesis's own offset added to its reads, map units.
+    modes : numpy.ndarray, optional
+        ``(b, k)`` map-error shapes common to the beams.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(...)`` log-likelihoods up to a constant, as :func:`local_field_reference`.
     """
     f0, own, shape = reads
     measured = np.asarray(measured, dtype=float)
