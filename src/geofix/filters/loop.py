@@ -327,6 +327,8 @@ class FilterStepper:
         self._share = RepresentationShare.prior(s.noise_forgetting)
         self._modes = SwathModes.prior(s.noise_forgetting)
         self._ping_variances: tuple[np.ndarray, np.ndarray] | None = None
+        # each beam's variance before the count of shared map errors, over the counted one
+        self._uncounted: np.ndarray | None = None
 
     @property
     def noise_factor(self) -> float:
@@ -432,7 +434,12 @@ class FilterStepper:
         by central differences half a cell either side. The residual scale and the
         representation share still see the shapes' part of the innovations (taken out
         of theirs, the scale fell on block-mean maps and the particle filter lost a
-        trial in four there): a cautious double count.
+        trial in four there): a cautious double count. The shapes' coefficients are
+        fitted against each beam's variance before the count of the beams and pings that
+        share one map error (:func:`~geofix.filters.nuisance.correlated_share`): the count
+        is how the likelihood takes each error's information once, not the scatter of
+        one ping's residuals, and against the counted variance the shapes read as noise
+        wherever the representation share is not near zero.
         """
         h = 0.5 * self.grid.cell_size
         points = np.asarray(mean, dtype=float) + np.array(
@@ -445,7 +452,10 @@ class FilterStepper:
             return
         p = predicted[:, used]
         gradients = np.column_stack([p[1] - p[2], p[3] - p[4]]) / (2.0 * h)
-        noise = np.broadcast_to(np.asarray(weighed.noise_var, dtype=float), used.shape)[used]
+        noise = np.broadcast_to(np.asarray(weighed.noise_var, dtype=float), used.shape)
+        if self._uncounted is not None:
+            noise = noise * self._uncounted
+        noise = noise[used]
         residual = weighed.values[used] - p[0]
         self._modes = self._modes.updated(residual, shapes, gradients, noise, weighed.index, cov)
 
@@ -495,6 +505,7 @@ class FilterStepper:
         window); each counted once for the beams and pings that share one error.
         """
         self._ping_variances = None
+        self._uncounted = None
         if not self.settings.representation_error or self.state is None:
             return obs
         if self._representation is None:
@@ -519,7 +530,10 @@ class FilterStepper:
         # the relief the map lacks is measured over a window of track: shared across it
         window = ROUGHNESS_WINDOW_CELLS * self.grid.cell_size
         lacked = correlated_share(obs.offsets, window, step) * floor
-        return replace(obs, noise_var=base + np.maximum(layer, lacked))
+        noise_var = base + np.maximum(layer, lacked)
+        # each beam's own scatter, before the count: what one ping's residuals show
+        self._uncounted = (base + np.maximum(self._share.value * extra, floor)) / noise_var
+        return replace(obs, noise_var=noise_var)
 
     def _white_floored(self, declared: np.ndarray) -> np.ndarray:
         """Each beam's declared variance, raised to the readings' white scatter if larger.
