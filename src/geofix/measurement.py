@@ -436,7 +436,6 @@ def local_field_reference(
         ``(...)`` log-likelihoods up to a constant (off-map beams cost
         :data:`OFF_MAP_LOG_LIKELIHOOD` each).
     """
-    positions = np.asarray(positions, dtype=float)
     reads = local_field_reads(grid, positions, heading, offsets, sides)
     return local_field_from_reads(reads, measured, noise_var, bias_var, shift, modes)
 

@@ -142,37 +142,26 @@ class TerrainLikelihood:
         local = self.discretisation_noise and spacing > 0 and self._local_share(spacing, cell)
         if self.discretisation_noise and spacing > 0 and not local:
             var = var + spread_field_variance(grid, positions, spacing, obs, rng)
-
-        if offset is None or offset.models == 1:
-
-            def given(bias_var, shift) -> np.ndarray:
-                if local:
-                    sides = spacing * np.eye(2)
-                    return local_field_log_likelihood(
-                        grid, positions, *args, var, sides, bias_var, shift, modes
-                    )
-                return hypotheses_log_likelihood(
-                    grid, positions, *args, var, bias_var, shift, modes
+        sides = spacing * np.eye(2)
+        if offset is None:
+            if local:
+                return local_field_log_likelihood(
+                    grid, positions, *args, var, sides, obs.bias_var, None, modes
                 )
-
-            if offset is None:
-                return given(obs.bias_var, None)
-            return offset.marginal(given)  # each particle's own offsets, N(b, P)
-        # several walk rates: the map read once for all of them
+            return hypotheses_log_likelihood(grid, positions, *args, var, obs.bias_var, None, modes)
+        # each particle's own offsets, N(b_ik, P_k): the map read once for every rate
         if local:
-            reads = local_field_reads(
-                grid, positions, obs.heading, obs.offsets, spacing * np.eye(2)
-            )
+            reads = local_field_reads(grid, positions, obs.heading, obs.offsets, sides)
         else:
             predicted = predict_measurements(grid, positions, obs.heading, obs.offsets)
 
-        def given_rate(bias_var, shift) -> np.ndarray:
+        def given(bias_var, shift) -> np.ndarray:
             if local:
                 return local_field_from_reads(reads, obs.values, var, bias_var, shift, modes)
             shifted = predicted + np.asarray(shift, dtype=float)[..., None]
             return log_likelihood(shifted, obs.values, var, bias_var, modes)
 
-        return offset.marginal(given_rate)  # each particle's own offsets, N(b_ik, P_k)
+        return offset.marginal(given)
 
     def nodes(
         self, grid: Grid, obs: Observation, state: PmfState
