@@ -12,11 +12,13 @@ same pieces (:meth:`~FilterStepper.weigh`, :meth:`~FilterStepper.fold`,
 
 Each ping is taken relative to the offset's mean with its likelihood marginalised over the
 offset's variance, its variance widened by the representation error and the residual
-scale; a filter that carries the offset per hypothesis (pings of fewer than three beams)
-takes the readings as they are with the offset's prior. After an accepted ping the scale
-and the share learn from its innovations and the offset from its residuals: always for a
-ping of fewer than three beams, for one of several only when the caller says the
-position is settled (the navigator: while ``converged``; never in a campaign trial).
+scale; a filter that carries the offset per hypothesis (``pmf``, ``pf`` and ``mpf``, by
+default on every ping) takes the readings as they are with the offset's prior. After an
+accepted ping the scale and the share learn from its innovations; the hypotheses' own
+offsets learn in the filter's update, and the one common offset (otherwise) from the
+ping's residuals: always for a ping of fewer than three beams, for one of several only
+when the caller says the position is settled (the navigator: while ``converged``; never
+in a campaign trial).
 
 **Several fields.** A problem with further fields (:attr:`MatchProblem.fields`: a
 gravimeter or a magnetometer beside the echosounder) gives a filter that weighs them
@@ -90,8 +92,9 @@ class FilterSettings:
     noise_forgetting : float
         Forgetting factor per ping of the residual scale and the representation share.
     offset_per_hypothesis : bool or None
-        A filter that can carries the offset per hypothesis (None: for pings of fewer
-        than three beams); a method's own ``offset_per_hypothesis`` is above it.
+        A filter that can carries the offset per hypothesis (None: on every ping, as
+        True; False: the one common offset, marginalised per ping); a method's own
+        ``offset_per_hypothesis`` is above it.
     max_update_beams : int or None
         Most valid beams of one update (None: every beam of a ping), what the filter is
         sized for (:mod:`geofix.filters.sizing`).
@@ -344,7 +347,7 @@ class FilterStepper:
         self.offset = self.offset.predicted(t)
         if self._profile_offset is None:
             chosen = self.settings.offset_per_hypothesis
-            self._profile_offset = obs.values.size < 3 if chosen is None else bool(chosen)
+            self._profile_offset = True if chosen is None else bool(chosen)
         read = self._with_representation(obs)
         relative = self.offset.relative(read)
         weighed = self.scale.scaled(relative) if self.settings.adaptive_noise else relative
@@ -463,15 +466,16 @@ class FilterStepper:
     def carries_offset(self) -> bool:
         """The filter carries the offset per hypothesis (its own offset states).
 
-        By default for pings of fewer than three beams, whose offset and position only a
-        profile of several pings separates (decided at the first ping after a reset). A
-        multibeam ping's shape tells the position whatever the offset, and an offset per
-        hypothesis fitted to each ping lets a shift along a slope trade against it on a
-        map whose errors are not one offset, so by default those pings use the one common
-        offset, marginalised per ping. ``offset_per_hypothesis`` (the settings', or the
-        method's own) says otherwise: on a depth map the multibeam pings' offsets then
-        weigh a faster walk beside the declared one
-        (:func:`~geofix.filters.nuisance.default_fast_offset_walk`).
+        By default on every ping (decided at the first ping after a reset). A profile's
+        offset and position only several pings separate. On a coarse or misregistered
+        depth map a multibeam swath's mean level follows the relief below the map's cells
+        from place to place, so each hypothesis's own offset (with a faster walk beside
+        the declared one, :func:`~geofix.filters.nuisance.default_fast_offset_walk`)
+        explains its own map's level where one common offset would have to be one level
+        for all: on the section *Imperfect maps* and the real multibeam pings it is both
+        the more accurate and the nearer to consistent. ``offset_per_hypothesis=false``
+        (the settings', or the method's own) keeps the one common offset, marginalised
+        per ping.
         """
         return (
             bool(self.filter.carries_offset) and self.offset.active and bool(self._profile_offset)

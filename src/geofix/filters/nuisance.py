@@ -54,7 +54,7 @@ if TYPE_CHECKING:  # annotations only: the filter loop below base.run_filter imp
 #: a factor on the declared walk (:func:`default_fast_offset_walk`).
 GRAVITY_FAST_OFFSET_WALK = 10.0
 #: The same for a depth map's per-hypothesis offset on pings of three beams or more
-#: (``offset_per_hypothesis``): across a swath the error of a coarse map is relief below
+#: (the default ``offset_per_hypothesis``): across a swath the error of a coarse map is relief below
 #: its cells, which moves the swath's mean level from ping to ping.
 SWATH_FAST_OFFSET_WALK = 10.0
 
@@ -64,9 +64,9 @@ MAP_MODELS = ("exact", "adaptive", "imperfect")
 
 ``imperfect`` (the default of ``pmf``, ``pf`` and ``mpf``): the map's representation error
 per beam at the share the innovations support, the noise scaled to the innovations, and a
-common offset (measured minus map) estimated with the position -- per hypothesis for
-pings of fewer than three beams (:mod:`geofix.filters.hypothesis_offset`), the
-navigator's one :class:`CommonOffset` otherwise. ``adaptive``: the same without the
+common offset (measured minus map) estimated with the position, per hypothesis
+(:mod:`geofix.filters.hypothesis_offset`; ``offset_per_hypothesis=false``: the
+navigator's one :class:`CommonOffset`). ``adaptive``: the same without the
 offset. ``exact``: the map is the seabed up to white noise per beam. The navigator's
 settings per model: :meth:`geofix.filters.loop.FilterSettings.for_map_model`.
 """
