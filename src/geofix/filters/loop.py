@@ -150,6 +150,17 @@ class FilterSettings:
         return cls(**values)
 
 
+def offset_per_hypothesis(filt, settings: FilterSettings) -> bool:
+    """Whether ``filt`` carries the common offset per hypothesis under ``settings``.
+
+    The method's own ``offset_per_hypothesis`` is above the settings'; None in both is
+    every ping.
+    """
+    own = getattr(filt, "offset_per_hypothesis", None)
+    chosen = settings.offset_per_hypothesis if own is None else own
+    return True if chosen is None else bool(chosen)
+
+
 class FilterStepper:
     """One recursive filter with its state and its measurement model's nuisance states.
 
@@ -325,7 +336,6 @@ class FilterStepper:
         weighted = self.state is not None and posterior_points(self.state) is not None
         self.offset = CommonOffset.prior(std if weighted else 0.0, s.depth_bias_walk, t)
         self._offset_prior_var = self.offset.var
-        self._profile_offset: bool | None = None  # offsets per hypothesis (first ping)
         self.scale = ResidualScale.prior(s.noise_forgetting)
         self._share = RepresentationShare.prior(s.noise_forgetting)
         self._modes = SwathModes.prior(s.noise_forgetting)
@@ -345,9 +355,6 @@ class FilterStepper:
         predicted to ``t`` (seconds).
         """
         self.offset = self.offset.predicted(t)
-        if self._profile_offset is None:
-            chosen = self.settings.offset_per_hypothesis
-            self._profile_offset = True if chosen is None else bool(chosen)
         read = self._with_representation(obs)
         relative = self.offset.relative(read)
         weighed = self.scale.scaled(relative) if self.settings.adaptive_noise else relative
@@ -466,7 +473,7 @@ class FilterStepper:
     def carries_offset(self) -> bool:
         """The filter carries the offset per hypothesis (its own offset states).
 
-        By default on every ping (decided at the first ping after a reset). A profile's
+        By default on every ping (:func:`offset_per_hypothesis`). A profile's
         offset and position only several pings separate. On a coarse or misregistered
         depth map a multibeam swath's mean level follows the relief below the map's cells
         from place to place, so each hypothesis's own offset (with a faster walk beside
@@ -478,7 +485,9 @@ class FilterStepper:
         per ping.
         """
         return (
-            bool(self.filter.carries_offset) and self.offset.active and bool(self._profile_offset)
+            bool(self.filter.carries_offset)
+            and self.offset.active
+            and offset_per_hypothesis(self.filter, self.settings)
         )
 
     def _for_filter(self, weighed: Observation) -> Observation:
@@ -610,4 +619,4 @@ def _plausible_range(grid: Grid) -> tuple[float, float]:
     return (low - spread, high + spread)
 
 
-__all__ = ["FilterSettings", "FilterStepper"]
+__all__ = ["FilterSettings", "FilterStepper", "offset_per_hypothesis"]

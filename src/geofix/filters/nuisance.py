@@ -461,14 +461,15 @@ class RepresentationShare:
     :func:`correlated_share`.) The innovations' weights use the share so far, but for a
     ping of :data:`SHARE_FLOOR_BEAMS` beams or more never below
     :data:`SHARE_WEIGHT_FLOOR`: at a share near zero ``V_b`` is the sensor's variance
-    alone, and the few multibeam pings that took it there (one ping of 61 beams took it
-    from 1 to 0.09) would weigh thousands of times the rest for as long as the running
-    sums remember them. A ping of one or two beams is not floored: floored, the
-    single-beam Azores demo's filters ended farther off (``pmf`` 271.6 m against 250.2 m
-    over 60 trials, NEES 6.11 against 4.88). A ping's sums are divided by the beams that
-    share one map error across its swath (``counted``), as its likelihood counts them:
-    its beams' excesses are not independent measures of ``c``. The per-beam excess is a
-    noisy measure, so the share moves over tens of pings, not one.
+    alone, and the few multibeam pings that took it there (one ping of many beams can
+    take it from 1 to near 0) would weigh thousands of times the rest for as long as the
+    running sums remember them. A ping of one or two beams is not floored: floored, the
+    single-beam Azores demo's filters (the map the seabed) ended farther off (``pmf``
+    271.6 m against 250.2 m over 60 trials, NEES 6.11 against 4.88). A ping's sums are
+    divided by the beams that share one map error across its swath (``counted``), as its
+    likelihood counts them: its beams' excesses are not independent measures of ``c``.
+    The per-beam excess is a noisy measure, so the share moves over tens of pings, not
+    one.
 
     Parameters
     ----------

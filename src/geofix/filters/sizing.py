@@ -144,6 +144,7 @@ def filter_size(filt, settings=None, grid: Grid | None = None, beams: int | None
     FilterSize or None
     """
     from geofix.filters.loop import FilterSettings as NavigatorSettings
+    from geofix.filters.loop import offset_per_hypothesis
 
     family = filter_points(filt)
     if family is None:
@@ -157,7 +158,9 @@ def filter_size(filt, settings=None, grid: Grid | None = None, beams: int | None
     per_beam = BEAM_BYTES
     if offset:
         per_beam = (
-            HYPOTHESIS_OFFSET_BEAM_BYTES if _per_hypothesis(filt, settings) else OFFSET_BEAM_BYTES
+            HYPOTHESIS_OFFSET_BEAM_BYTES
+            if offset_per_hypothesis(filt, settings)
+            else OFFSET_BEAM_BYTES
         )
     state = float(points) * (STATE_POINT_BYTES[kind] + STATE_BEAM_BYTES[kind] * b)
     update = float(points) * (UPDATE_POINT_BYTES[kind] + per_beam * b)
@@ -167,13 +170,6 @@ def filter_size(filt, settings=None, grid: Grid | None = None, beams: int | None
         update = max(update, cells * (MAP_LAYER_COPIES - 1))
     unit = "particles" if kind in ("pf", "mpf") else "nodes"
     return FilterSize(f"{kind} with {points} {unit} x {b} beams", points, state, update)
-
-
-def _per_hypothesis(filt, settings) -> bool:
-    """Whether the filter carries the offset per hypothesis on a multibeam ping."""
-    own = getattr(filt, "offset_per_hypothesis", None)
-    chosen = settings.offset_per_hypothesis if own is None else own
-    return True if chosen is None else bool(chosen)
 
 
 def check_filter_budget(filt, settings=None, grid: Grid | None = None, beams=None):
