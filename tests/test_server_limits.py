@@ -54,7 +54,9 @@ def test_a_heavy_connection_does_not_stall_an_ordinary_one(terrain):
     # stays near them while the heavy one runs updates tens of times longer; with one
     # worker for all (every update in one queue, as on a single event loop) it waits for
     # the heavy updates.
-    heavy_spec = "pf:particles=1000000,max_particles=1000000"
+    # one common offset: the scheduling is the test, and the default's offset per
+    # hypothesis would triple each heavy update's time for nothing it asserts
+    heavy_spec = "pf:particles=1000000,max_particles=1000000,offset_per_hypothesis=false"
     settings = {"max_update_beams": 9}
     ratios = {}
     for workers in (4, 1):
@@ -197,7 +199,8 @@ def test_config_beyond_the_memory_budget_or_max_points_is_refused_and_the_naviga
     terrain,
 ):
     limits = ServerLimits(memory_bytes=400 * 2**20, max_points=1_000_000)
-    with serve_in_thread(terrain, "pmf", limits=limits) as (host, port), Client(host, port) as c:
+    start = "pmf:points=101,max_points=101"  # the default's 301 x 301 nodes need 503 MiB
+    with serve_in_thread(terrain, start, limits=limits) as (host, port), Client(host, port) as c:
         assert c.config(method="pf:particles=1000,max_particles=1000")["ok"]
         c.init(0.0, 1500.0, 2000.0, 100.0)
         before = c.estimate()

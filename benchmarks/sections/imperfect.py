@@ -35,15 +35,15 @@ STILL_OFFSET = (
     "pf:offset_walk=0",
     "mpf:offset_walk=0",
 )
-#: And on the depth map the offset carried per hypothesis on the multibeam pings too,
-#: beside the default's one offset marginalised per ping.
-PER_HYPOTHESIS = (
-    "pmf:offset_per_hypothesis=true",
-    "pf:offset_per_hypothesis=true",
-    "mpf:offset_per_hypothesis=true",
+#: And on the depth map the one common offset marginalised per multibeam ping, beside the
+#: default's offset carried per hypothesis.
+COMMON_OFFSET = (
+    "pmf:offset_per_hypothesis=false",
+    "pf:offset_per_hypothesis=false",
+    "mpf:offset_per_hypothesis=false",
 )
 EXTRA_METHODS = {
-    "imperfect_depth": PER_HYPOTHESIS,
+    "imperfect_depth": COMMON_OFFSET,
     "imperfect_gravity": DECLARED_WALK_ONLY + STILL_OFFSET,
     "imperfect_gravity_1km": DECLARED_WALK_ONLY + STILL_OFFSET,
 }
@@ -116,7 +116,7 @@ def build(quick: bool) -> str:
     # scenario -> (default filters' median NEES, best's ratio to the aware bound, each
     # filter's median NEES with a still offset)
     drawn = {}
-    # depth row -> (best default, best per-hypothesis): (spec, RMS m, NEES, false fixes)
+    # depth row -> (best default, best common-offset): (spec, RMS m, NEES, false fixes)
     swath: dict[str, tuple[tuple, tuple]] = {}
     for name, rows in ROWS.items():
         base = scenario(name)
@@ -143,10 +143,10 @@ def build(quick: bool) -> str:
             best = _best(chosen, DEFAULT_FILTERS) or ("-", float("inf"))
             if label == DRAWN_OFFSET_ROW:
                 drawn[name] = (default_nees, _ratio(best[1], aware), still_nees)
-            if EXTRA_METHODS.get(name) == PER_HYPOTHESIS:
+            if EXTRA_METHODS.get(name) == COMMON_OFFSET:
                 swath[label] = (
                     _best(chosen, DEFAULT_FILTERS),
-                    _best(chosen, PER_HYPOTHESIS),
+                    _best(chosen, COMMON_OFFSET),
                     bound,
                 )
             bounds.append(
@@ -184,7 +184,7 @@ def build(quick: bool) -> str:
             )
         )
     parts.append(_reading(drawn))
-    parts.append(_per_hypothesis_reading(swath))
+    parts.append(_common_offset_reading(swath))
     parts.append(_figure(scenario("imperfect_depth")))
     return "\n".join(parts)
 
@@ -317,9 +317,10 @@ def _intro(trials: int) -> str:
         "`imperfect_gravity`). Default settings, nothing "
         "told about the map's errors. The filters' default `map_model=imperfect` adds the "
         "map's representation error per beam at the share the innovations support, scales "
-        "the noise to the innovations and estimates a common offset (measured minus map): "
-        "per hypothesis for single-beam profiles, one for the navigator for multibeam pings "
-        "(`geofix.filters.nuisance`, `geofix.filters.hypothesis_offset`), and marginalises "
+        "the noise to the innovations and estimates a common offset (measured minus map) "
+        "per hypothesis, on a multibeam ping each hypothesis weighing a walk ten times the "
+        "declared one beside it (`geofix.filters.nuisance`, "
+        "`geofix.filters.hypothesis_offset`), and marginalises "
         "each multibeam ping over the map error's tilt and curvature across the swath at "
         "the variance and persistence its innovations show (`SwathModes`); "
         "`map_model=exact` is the map taken as the seabed. A false fix ends more than "
@@ -360,25 +361,26 @@ def _best(chosen: dict, specs: tuple) -> tuple | None:
     return min(finite, key=lambda c: c[1], default=None)
 
 
-def _per_hypothesis_reading(swath: dict) -> str:
-    """The depth map's rows: the best default filter beside the best per-hypothesis one."""
+def _common_offset_reading(swath: dict) -> str:
+    """The depth map's rows: the best default filter beside the best common-offset one."""
     if not swath:
         return ""
     lines = [
         f"- {label}: default `{d[0]}` {d[1]:.1f} m ({_ratio(d[1], bound)} of the "
-        f"imperfect-map bound, NEES {d[2]}, false fixes {d[3]}); per hypothesis `{p[0]}` "
+        f"imperfect-map bound, NEES {d[2]}, false fixes {d[3]}); one common offset `{p[0]}` "
         f"{p[1]:.1f} m ({_ratio(p[1], bound)}, NEES {p[2]}, false fixes {p[3]})"
         for label, (d, p, bound) in swath.items()
         if d is not None and p is not None
     ]
     return (
-        "\nThe `offset_per_hypothesis=true` rows of `imperfect_depth` carry the common "
-        "offset per hypothesis on the multibeam pings too, each hypothesis weighing a walk "
-        "ten times the declared one beside it (`geofix.filters.nuisance."
-        "default_fast_offset_walk`), where the default marginalises each multibeam ping "
-        "over the offset's prior and so forgets the level the pings share. Per row, the "
-        "best default filter beside the best of those rows (the other filters' rows are in "
-        "the table):\n\n" + "\n".join(lines) + "\n"
+        "\nThe `offset_per_hypothesis=false` rows of `imperfect_depth` keep one common "
+        "offset for the multibeam pings and marginalise each ping over its prior (the "
+        "navigator learns it only while `converged`), where the default carries it per "
+        "hypothesis, each hypothesis weighing a walk ten times the declared one beside it "
+        "(`geofix.filters.nuisance.default_fast_offset_walk`): on a coarse or misregistered "
+        "map the swath's level follows the relief below the map's cells, which one offset "
+        "for all hypotheses cannot. Per row, the best default filter beside the best of "
+        "those rows (the other filters' rows are in the table):\n\n" + "\n".join(lines) + "\n"
     )
 
 
@@ -409,9 +411,8 @@ def _reading(drawn: dict) -> str:
         "\nReading the tables: with the map taken as exact (`map_model=exact`) an offset or "
         "a correlated error makes every filter diverge with a small covariance (median NEES "
         "in the thousands and more); the default keeps the covariance honest on the offset "
-        "and the coarser map, at a cost in accuracy on the identical map: a campaign reports "
-        "no status, so a multibeam ping is marginalised over the offset's prior and forgets "
-        "the absolute level (the online navigator learns it once converged). The map "
+        "and the coarser map, each hypothesis carrying its own offset (on the block means "
+        "wider than its errors). The map "
         "error's shapes across the swath (`SwathModes`) keep the correlated error from "
         "drawing the filters away; on block means part of the cells' representation error "
         "reads as such shapes too, and the filters give up some of the information the "
@@ -420,10 +421,12 @@ def _reading(drawn: dict) -> str:
         "gravimeter drifts: on a gravity map the filters weigh by default a walk ten times "
         "the declared one beside it (`fast_offset_walk=10`), each hypothesis by its own "
         "residuals; the `fast_offset_walk=0` rows weigh the declared walk alone, as the "
-        "filters did before (both gravity maps show both). On a depth map the declared "
-        "walk alone stays the default: on the real ship tracks against ETOPO1 (their own "
-        "section) the faster walk lets a wrong stretch of the coarse grid match a depth "
-        "profile, and the claims beyond 3 sigma rise. Where a row "
+        "filters did before (both gravity maps show both). On a depth map a multibeam "
+        "ping's offsets weigh the same faster walk (a swath's level follows the relief "
+        "below the map's cells) but a profile's the declared walk alone: on the real ship "
+        "tracks against ETOPO1 (their own section) the faster walk lets a wrong stretch of "
+        "the coarse grid match a depth profile, and the claims beyond 3 sigma rise. "
+        "Where a row "
         "still shows false fixes or a NEES above 5, the model does not yet hold there: the "
         "open work is listed in the imperfect-maps issue. The gravity rows whose offset "
         "each trial draws from the filters' own prior (5 mGal rms) are where the "

@@ -233,3 +233,42 @@ def test_the_representation_share_follows_what_the_innovations_support(rng):
     assert 0.6 < _share_after(1.0, 1.0, rng) < 1.5
     # twice the layer's error in the residuals: a share of about four
     assert 2.5 < _share_after(2.0, 1.0, rng) <= 4.0
+
+
+def _multibeam_share_path(shares, rng, counted: float = 12.2) -> list[float]:
+    """The share after each 61-beam ping whose residuals hold ``c`` of a 30 m^2 layer.
+
+    Read at a known position (the five points agree): each beam's excess is
+    ``c * 30`` m^2 beyond the declared 0.25 m^2; ``counted`` beams share one map error.
+    """
+    from geofix.filters.nuisance import PointReads, RepresentationShare
+
+    beams, declared, layer = 61, 0.25, 30.0
+    share = RepresentationShare.prior(0.98)
+    path = []
+    for c in shares:
+        predicted = np.tile(rng.normal(0.0, 10.0, beams), (5, 1))
+        values = predicted[0] + rng.normal(0.0, np.sqrt(declared + c * layer), beams)
+        reads = PointReads(
+            predicted, np.full(5, 0.2), values, np.full(beams, declared), np.ones(beams, bool)
+        )
+        variances = (np.full(beams, declared), np.full(beams, layer))
+        share = share.updated(reads, *variances, 0.0, counted)
+        path.append(share.value)
+    return path
+
+
+def test_a_few_quiet_pings_do_not_hold_the_share_down(rng):
+    """Four pings whose residuals barely show the layer, then sixty that show half of it.
+
+    Weighed at the share of the moment, the quiet pings (then the next ones too) would
+    weigh thousands of times the rest once the share is near zero, and the sixty pings
+    leave it near 0.3 (0.26-0.31 over eight seeds); weighed no sharper than the prior's
+    share and counted once per independent map error across the swath, it ends near one
+    half (0.46-0.50 over the same seeds).
+    """
+    path = _multibeam_share_path([0.02] * 4 + [0.5] * 60, rng)
+    assert 0.4 < path[-1] < 0.65
+    # one ping of 61 beams is worth about five independent map errors: it moves the
+    # share, it does not set it (weighed beam by beam, one such ping took it to 0.09)
+    assert path[0] > 0.3

@@ -63,6 +63,10 @@ def test_sizes_follow_points_and_beams_and_unsized_filters_are_none(terrain):
     large = method_size("pf:particles=1000,max_particles=1000", {"max_update_beams": 64})
     exact = method_size("pf:particles=1000,max_particles=1000,map_model=exact")
     assert exact.update_bytes < large.update_bytes  # no offset per hypothesis
+    # one common offset marginalised per ping holds half the arrays of one per hypothesis
+    common = method_size("pf:particles=1000,max_particles=1000,offset_per_hypothesis=false", {})
+    told = method_size("pf:particles=1000,max_particles=1000", {"offset_per_hypothesis": False})
+    assert exact.update_bytes < common.update_bytes == told.update_bytes < large.update_bytes
     assert small.points == 1000 and large.update_bytes > 4 * small.update_bytes
     assert method_size("pmf:points=101,max_points=101").points == 101**2
     assert method_size("sitan") is None

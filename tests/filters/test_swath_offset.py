@@ -56,19 +56,22 @@ def _run(spec: str, grid, trial):
 
 
 @pytest.mark.parametrize("name", ["pmf", "mpf:particles=2000"])
-def test_a_swath_carried_per_hypothesis_learns_the_level_the_default_forgets(offset_swath, name):
+def test_a_swath_carried_per_hypothesis_learns_the_level_the_common_offset_forgets(
+    offset_swath, name
+):
     grid, trial = offset_swath
-    default, default_error = _run(name, grid, trial)
+    own, own_error = _run(name, grid, trial)
     sep = "," if ":" in name else ":"
-    own, own_error = _run(f"{name}{sep}offset_per_hypothesis=true", grid, trial)
-    # the default marginalises each multibeam ping over the offset's prior: it keeps none
-    assert not default.carries_offset and default.offset.mean == 0.0
-    # per hypothesis, the offset the posterior holds is the readings' 20 m, within 3 sigma
+    common, common_error = _run(f"{name}{sep}offset_per_hypothesis=false", grid, trial)
+    # the common offset marginalises each multibeam ping over its prior: it keeps none
+    assert not common.carries_offset and common.offset.mean == 0.0
+    # per hypothesis (the default), the offset the posterior holds is the readings' 20 m,
+    # within 3 sigma
     assert own.carries_offset
     assert abs(own.offset.mean - OFFSET_M) < 3.0 * np.sqrt(own.offset.var)
     assert np.sqrt(own.offset.var) < 0.25 * OFFSET_M
     # and the position no worse for it (a 1 km map cell)
-    assert own_error < max(2.0 * default_error, 0.1 * grid.cell_size)
+    assert own_error < max(2.0 * common_error, 0.1 * grid.cell_size)
 
 
 def test_the_setting_is_read_as_a_bool_and_refused_otherwise():

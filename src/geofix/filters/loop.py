@@ -12,11 +12,13 @@ same pieces (:meth:`~FilterStepper.weigh`, :meth:`~FilterStepper.fold`,
 
 Each ping is taken relative to the offset's mean with its likelihood marginalised over the
 offset's variance, its variance widened by the representation error and the residual
-scale; a filter that carries the offset per hypothesis (pings of fewer than three beams)
-takes the readings as they are with the offset's prior. After an accepted ping the scale
-and the share learn from its innovations and the offset from its residuals: always for a
-ping of fewer than three beams, for one of several only when the caller says the
-position is settled (the navigator: while ``converged``; never in a campaign trial).
+scale; a filter that carries the offset per hypothesis (``pmf``, ``pf`` and ``mpf``, by
+default on every ping) takes the readings as they are with the offset's prior. After an
+accepted ping the scale and the share learn from its innovations; the hypotheses' own
+offsets learn in the filter's update, and the one common offset (otherwise) from the
+ping's residuals: always for a ping of fewer than three beams, for one of several only
+when the caller says the position is settled (the navigator: while ``converged``; never
+in a campaign trial).
 
 **Several fields.** A problem with further fields (:attr:`MatchProblem.fields`: a
 gravimeter or a magnetometer beside the echosounder) gives a filter that weighs them
@@ -90,8 +92,9 @@ class FilterSettings:
     noise_forgetting : float
         Forgetting factor per ping of the residual scale and the representation share.
     offset_per_hypothesis : bool or None
-        A filter that can carries the offset per hypothesis (None: for pings of fewer
-        than three beams); a method's own ``offset_per_hypothesis`` is above it.
+        A filter that can carries the offset per hypothesis (None: on every ping, as
+        True; False: the one common offset, marginalised per ping); a method's own
+        ``offset_per_hypothesis`` is above it.
     max_update_beams : int or None
         Most valid beams of one update (None: every beam of a ping), what the filter is
         sized for (:mod:`geofix.filters.sizing`).
@@ -145,6 +148,17 @@ class FilterSettings:
                 f"filter: unknown setting(s) {', '.join(unknown)} (known: {', '.join(known)})"
             )
         return cls(**values)
+
+
+def offset_per_hypothesis(filt, settings: FilterSettings) -> bool:
+    """Whether ``filt`` carries the common offset per hypothesis under ``settings``.
+
+    The method's own ``offset_per_hypothesis`` is above the settings'; None in both is
+    every ping.
+    """
+    own = getattr(filt, "offset_per_hypothesis", None)
+    chosen = settings.offset_per_hypothesis if own is None else own
+    return True if chosen is None else bool(chosen)
 
 
 class FilterStepper:
@@ -322,11 +336,12 @@ class FilterStepper:
         weighted = self.state is not None and posterior_points(self.state) is not None
         self.offset = CommonOffset.prior(std if weighted else 0.0, s.depth_bias_walk, t)
         self._offset_prior_var = self.offset.var
-        self._profile_offset: bool | None = None  # offsets per hypothesis (first ping)
         self.scale = ResidualScale.prior(s.noise_forgetting)
         self._share = RepresentationShare.prior(s.noise_forgetting)
         self._modes = SwathModes.prior(s.noise_forgetting)
         self._ping_variances: tuple[np.ndarray, np.ndarray] | None = None
+        # each beam's variance before the count of shared map errors, over the counted one
+        self._uncounted: np.ndarray | None = None
 
     @property
     def noise_factor(self) -> float:
@@ -340,9 +355,6 @@ class FilterStepper:
         predicted to ``t`` (seconds).
         """
         self.offset = self.offset.predicted(t)
-        if self._profile_offset is None:
-            chosen = self.settings.offset_per_hypothesis
-            self._profile_offset = obs.values.size < 3 if chosen is None else bool(chosen)
         read = self._with_representation(obs)
         relative = self.offset.relative(read)
         weighed = self.scale.scaled(relative) if self.settings.adaptive_noise else relative
@@ -407,7 +419,8 @@ class FilterStepper:
                 self._learn_modes(weighed, prior_mean, prior_cov)
             if self._ping_variances is not None:
                 declared, extra = self._ping_variances
-                self._share = self._share.updated(reads, declared, extra, relative.bias_var)
+                across = correlated_share(relative.offsets, self.grid.cell_size)
+                self._share = self._share.updated(reads, declared, extra, relative.bias_var, across)
             self.scale = self.scale.updated(reads, relative.bias_var)
         if not self.offset.active:
             return
@@ -431,7 +444,12 @@ class FilterStepper:
         by central differences half a cell either side. The residual scale and the
         representation share still see the shapes' part of the innovations (taken out
         of theirs, the scale fell on block-mean maps and the particle filter lost a
-        trial in four there): a cautious double count.
+        trial in four there): a cautious double count. The shapes' coefficients are
+        fitted against each beam's variance before the count of the beams and pings that
+        share one map error (:func:`~geofix.filters.nuisance.correlated_share`): the count
+        is how the likelihood takes each error's information once, not the scatter of
+        one ping's residuals, and against the counted variance the shapes read as noise
+        wherever the representation share is not near zero.
         """
         h = 0.5 * self.grid.cell_size
         points = np.asarray(mean, dtype=float) + np.array(
@@ -444,7 +462,10 @@ class FilterStepper:
             return
         p = predicted[:, used]
         gradients = np.column_stack([p[1] - p[2], p[3] - p[4]]) / (2.0 * h)
-        noise = np.broadcast_to(np.asarray(weighed.noise_var, dtype=float), used.shape)[used]
+        noise = np.broadcast_to(np.asarray(weighed.noise_var, dtype=float), used.shape)
+        if self._uncounted is not None:
+            noise = noise * self._uncounted
+        noise = noise[used]
         residual = weighed.values[used] - p[0]
         self._modes = self._modes.updated(residual, shapes, gradients, noise, weighed.index, cov)
 
@@ -452,18 +473,21 @@ class FilterStepper:
     def carries_offset(self) -> bool:
         """The filter carries the offset per hypothesis (its own offset states).
 
-        By default for pings of fewer than three beams, whose offset and position only a
-        profile of several pings separates (decided at the first ping after a reset). A
-        multibeam ping's shape tells the position whatever the offset, and an offset per
-        hypothesis fitted to each ping lets a shift along a slope trade against it on a
-        map whose errors are not one offset, so by default those pings use the one common
-        offset, marginalised per ping. ``offset_per_hypothesis`` (the settings', or the
-        method's own) says otherwise: on a depth map the multibeam pings' offsets then
-        weigh a faster walk beside the declared one
-        (:func:`~geofix.filters.nuisance.default_fast_offset_walk`).
+        By default on every ping (:func:`offset_per_hypothesis`). A profile's
+        offset and position only several pings separate. On a coarse or misregistered
+        depth map a multibeam swath's mean level follows the relief below the map's cells
+        from place to place, so each hypothesis's own offset (with a faster walk beside
+        the declared one, :func:`~geofix.filters.nuisance.default_fast_offset_walk`)
+        explains its own map's level where one common offset would have to be one level
+        for all: on the section *Imperfect maps* and the real multibeam pings it is both
+        the more accurate and the nearer to consistent. ``offset_per_hypothesis=false``
+        (the settings', or the method's own) keeps the one common offset, marginalised
+        per ping.
         """
         return (
-            bool(self.filter.carries_offset) and self.offset.active and bool(self._profile_offset)
+            bool(self.filter.carries_offset)
+            and self.offset.active
+            and offset_per_hypothesis(self.filter, self.settings)
         )
 
     def _for_filter(self, weighed: Observation) -> Observation:
@@ -494,6 +518,7 @@ class FilterStepper:
         window); each counted once for the beams and pings that share one error.
         """
         self._ping_variances = None
+        self._uncounted = None
         if not self.settings.representation_error or self.state is None:
             return obs
         if self._representation is None:
@@ -518,7 +543,10 @@ class FilterStepper:
         # the relief the map lacks is measured over a window of track: shared across it
         window = ROUGHNESS_WINDOW_CELLS * self.grid.cell_size
         lacked = correlated_share(obs.offsets, window, step) * floor
-        return replace(obs, noise_var=base + np.maximum(layer, lacked))
+        noise_var = base + np.maximum(layer, lacked)
+        # each beam's own scatter, before the count: what one ping's residuals show
+        self._uncounted = (base + np.maximum(self._share.value * extra, floor)) / noise_var
+        return replace(obs, noise_var=noise_var)
 
     def _white_floored(self, declared: np.ndarray) -> np.ndarray:
         """Each beam's declared variance, raised to the readings' white scatter if larger.
@@ -591,4 +619,4 @@ def _plausible_range(grid: Grid) -> tuple[float, float]:
     return (low - spread, high + spread)
 
 
-__all__ = ["FilterSettings", "FilterStepper"]
+__all__ = ["FilterSettings", "FilterStepper", "offset_per_hypothesis"]

@@ -227,7 +227,7 @@ class ParticleSettings(RecursiveFilter):
     offset_per_hypothesis : bool or None
         Where the particles carry the common offset per hypothesis, as
         :class:`geofix.filters.pmf.Pmf`'s: every ping (True), none (False), or the
-        stepper's settings (None, the default: pings of fewer than three beams).
+        stepper's settings (None, the default: every ping).
     offset_rates : str
         How the particles weigh the offset's walk rates, as
         :class:`geofix.filters.pmf.Pmf`'s: ``own`` (the default) or ``shared``

@@ -267,11 +267,11 @@ class Pmf(RecursiveFilter):
         beyond the errors: the section *Imperfect maps* shows both.
     offset_per_hypothesis : bool or None
         Carry the common offset per hypothesis on every ping (True), on none (False), or
-        as the stepper's settings say (None, the default: pings of fewer than three
-        beams; :attr:`geofix.filters.loop.FilterStepper.carries_offset`). On a depth map
-        the multibeam pings' offsets then weigh a faster walk beside the declared one
+        as the stepper's settings say (None, the default: every ping;
+        :attr:`geofix.filters.loop.FilterStepper.carries_offset`). On a depth map the
+        multibeam pings' offsets weigh a faster walk beside the declared one
         (:func:`geofix.filters.nuisance.default_fast_offset_walk`); the section
-        *Imperfect maps* measures it beside the default.
+        *Imperfect maps* measures ``offset_per_hypothesis=false`` beside the default.
     offset_rates : str
         How the hypotheses weigh the offset's walk rates
         (:data:`geofix.filters.hypothesis_offset.OFFSET_RATES`): ``own`` (the default),

@@ -14,8 +14,10 @@ The constants are measured, not derived: :mod:`tracemalloc` peaks of a navigator
 80 000 particles (101 x 101 to 301 x 301 nodes) and 8 and 64 beams, fitted as
 ``points * (a + b * beams)`` once the map layer's six copies are taken off (the
 process's peak resident size agrees with them). A filter that carries an offset per
-hypothesis (``map_model=imperfect``, or a ``depth_bias_std`` other than 0) marginalises
-each hypothesis's likelihood over it with ``(points, beams)`` arrays. Otherwise the
+hypothesis (``map_model=imperfect``, or a ``depth_bias_std`` other than 0; by default on
+every ping) keeps each hypothesis's offset at two walk rates in ``(points, beams)``
+arrays, one marginalised over a common offset (``offset_per_hypothesis=false``) half as
+many. Otherwise the
 likelihood is one compiled pass and the per-beam part is small. Each constant here is
 the fit plus a margin, so the estimate is an upper bound at the sizes that matter.
 
@@ -35,7 +37,14 @@ from geofix.maps.grid import Grid
 from geofix.memory import check_allocation, format_bytes
 
 OFFSET_BEAM_BYTES = 44.0
-"""Bytes per point and beam of one update carrying an offset per hypothesis."""
+"""Bytes per point and beam of one update marginalised over one common offset."""
+HYPOTHESIS_OFFSET_BEAM_BYTES = 88.0
+"""Bytes per point and beam of one update carrying the offset per hypothesis.
+
+Each hypothesis's own offset at two walk rates (the default on every ping): measured
+74 B (``pf``, 80 000 particles) and 82 B (``pmf``, 201 x 201 nodes) per point and beam
+at 8 and 64 beams, fitted with the points' own part; ``mpf`` is taken at the same.
+"""
 BEAM_BYTES = 8.0
 """Bytes per point and beam of one update otherwise."""
 UPDATE_POINT_BYTES = {"pf": 96.0, "mpf": 192.0, "pmf": 112.0}
@@ -135,6 +144,7 @@ def filter_size(filt, settings=None, grid: Grid | None = None, beams: int | None
     FilterSize or None
     """
     from geofix.filters.loop import FilterSettings as NavigatorSettings
+    from geofix.filters.loop import offset_per_hypothesis
 
     family = filter_points(filt)
     if family is None:
@@ -145,7 +155,13 @@ def filter_size(filt, settings=None, grid: Grid | None = None, beams: int | None
     b = update_beams(settings, beams)
     map_model = str(filt.map_model)
     offset = map_model == "imperfect" or settings.depth_bias_std != 0
-    per_beam = OFFSET_BEAM_BYTES if offset else BEAM_BYTES
+    per_beam = BEAM_BYTES
+    if offset:
+        per_beam = (
+            HYPOTHESIS_OFFSET_BEAM_BYTES
+            if offset_per_hypothesis(filt, settings)
+            else OFFSET_BEAM_BYTES
+        )
     state = float(points) * (STATE_POINT_BYTES[kind] + STATE_BEAM_BYTES[kind] * b)
     update = float(points) * (UPDATE_POINT_BYTES[kind] + per_beam * b)
     if grid is not None and (map_model != "exact" or settings.representation_error):

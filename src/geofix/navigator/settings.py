@@ -124,10 +124,9 @@ class NavigatorSettings:
         about 50 pings).
     offset_per_hypothesis : bool or None
         With a common offset, whether a filter that can (``pmf``, ``pf``, ``mpf``)
-        carries it per hypothesis; None (default): for pings of fewer
-        than three beams (a profile), and the navigator's one offset for multibeam pings.
-        A method's own ``offset_per_hypothesis`` (``pmf:offset_per_hypothesis=true``) is
-        above this one.
+        carries it per hypothesis; None (default): on every ping, as True; False: the
+        navigator's one offset, marginalised per ping. A method's own
+        ``offset_per_hypothesis`` (``pmf:offset_per_hypothesis=false``) is above this one.
     lag_s : float
         The sensor's first-order lag time constant, seconds (a damped gravimeter's
         datasheet number; 0, the default: none). Each ping's values are compensated
