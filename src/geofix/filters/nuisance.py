@@ -465,7 +465,7 @@ class RepresentationShare:
     take it from 1 to near 0) would weigh thousands of times the rest for as long as the
     running sums remember them. A ping of one or two beams is not floored: floored, the
     single-beam Azores demo's filters (the map the seabed) ended farther off (``pmf``
-    271.6 m against 250.2 m over 60 trials, NEES 6.11 against 4.88). A ping's sums are
+    271.6 m against 257.7 m over 60 trials, NEES 6.11 against 5.16). A ping's sums are
     divided by the beams that share one map error across its swath (``counted``), as its
     likelihood counts them: its beams' excesses are not independent measures of ``c``.
     The per-beam excess is a noisy measure, so the share moves over tens of pings, not
