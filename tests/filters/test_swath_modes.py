@@ -171,14 +171,14 @@ def _correlated_mission():
     return scen, prepare_map(scen)
 
 
-def _ends(scen, grid, spec: str) -> list[tuple[float, float]]:
-    """``(end error m, end NEES)`` of every trial of ``spec``."""
+def _ends(scen, grid, spec: str, trials: int | None = None) -> list[tuple[float, float]]:
+    """``(end error m, end NEES)`` of the first ``trials`` trials of ``spec`` (default all)."""
     from geofix.evaluate.runner import method_rng, run_trial
     from geofix.methods import parse_method_spec
     from geofix.sim.simulate import simulate_trial
 
     out = []
-    for index in range(scen.trials):
+    for index in range(scen.trials if trials is None else trials):
         trial = simulate_trial(scen, grid, index)
         result = run_trial(parse_method_spec(spec), trial, grid, method_rng(7, index, spec))
         e = result.estimate[-1] - trial.truth[-1]
@@ -198,5 +198,5 @@ def test_a_correlated_map_error_no_longer_draws_the_filters_away(monkeypatch):
         for error, nees in _ends(scen, grid, spec):
             assert error < 10.0 and nees < 13.8, (spec, error, nees)
     monkeypatch.setattr(SwathModes, "columns", lambda self, shapes: None)
-    error, nees = max(_ends(scen, grid, "pf"))
+    ((error, nees),) = _ends(scen, grid, "pf", trials=1)  # trial 0, as the docstring says
     assert error > 50.0 and nees > 100.0
