@@ -529,10 +529,10 @@ class RepresentationShare:
         q = np.broadcast_to(np.asarray(extra, dtype=float), reads.used.shape)[reads.used]
         if not q.any():
             return self
-        weighed = self.value
+        share = self.value
         if q.size >= SHARE_FLOOR_BEAMS:
-            weighed = max(weighed, SHARE_WEIGHT_FLOOR)
-        v2 = (r + weighed * q + explained) ** 2
+            share = max(share, SHARE_WEIGHT_FLOOR)
+        v2 = (r + share * q + explained) ** 2
         lam, per = self.forgetting, 1.0 / max(float(counted), 1.0)
         num = lam * self.num + per * float(np.sum(q * (excess - r) / v2))
         den = lam * self.den + per * float(np.sum(q * q / v2))
