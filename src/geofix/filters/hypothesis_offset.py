@@ -42,6 +42,7 @@ from scipy.special import logsumexp
 from geofix.errors import ConfigError
 from geofix.filters._grid_ops import node_positions
 from geofix.filters.base import Observation
+from geofix.filters.offset_sums import ResidualSums
 from geofix.maps.grid import Grid
 from geofix.measurement import predict_measurements
 from geofix.memory import cells_bytes, check_allocation
@@ -307,9 +308,7 @@ class HypothesisOffset:
         positions = np.asarray(positions, dtype=float)
         count = int(np.prod(positions.shape[:-1]))
         beams = int(np.isfinite(obs.values).sum())
-        check_allocation(
-            cells_bytes(count * max(beams, 1) * self.models, copies=3), "per-hypothesis offsets"
-        )
+        check_allocation(cells_bytes(count * max(beams, 1), copies=4), "per-hypothesis offsets")
         use = np.isfinite(obs.values)
         if predicted is None:
             offsets = np.asarray(obs.offsets, dtype=float)[use]
@@ -317,22 +316,20 @@ class HypothesisOffset:
             predicted = predict_measurements(grid, flat, obs.heading, offsets)
         else:
             predicted = np.asarray(predicted, dtype=float)[..., use]
-        predicted = predicted.reshape(count, -1)
         var = np.broadcast_to(np.asarray(obs.noise_var, dtype=float), obs.values.shape)[use]
-        # (K, count, beams): each rate's residuals
-        residual = obs.values[use] - predicted - self.means.reshape(self.models, count, 1)
-        valid = np.isfinite(residual)
-        w = np.where(valid, 1.0 / var, 0.0)
-        r = np.where(valid, residual, 0.0)
-        s = w.sum(axis=2)
-        t = (w * r).sum(axis=2)
+        # each rate's residual sums from the hypothesis's own, read once for every rate
+        sums = ResidualSums.of(predicted.reshape(count, -1), obs.values[use], var)
+        b = self.means.reshape(self.models, count)
+        s = sums.weight
+        t = sums.linear - b * s
         p = self.variances.reshape(-1, 1)
         gain = 1.0 + p * s
-        means = self.means.reshape(self.models, -1) + p * t / gain
+        means = b + p * t / gain
         most = float(s.max()) if s.size else 0.0
         log_prob = self.log_prob.reshape(self.models, -1)
         if self.models > 1:
-            ll = -0.5 * ((w * r * r).sum(axis=2) - p * t * t / gain) - 0.5 * np.log(gain)
+            square = sums.square - b * (2.0 * sums.linear - b * s)
+            ll = -0.5 * (square - p * t * t / gain) - 0.5 * np.log(gain)
             log_prob = _returned(log_prob + ll, self._log_prior())
         shape = self.means.shape
         return replace(

@@ -30,6 +30,7 @@ from geofix.errors import ConfigError
 from geofix.filters import _grid_ops as ops
 from geofix.filters.base import Observation
 from geofix.filters.hypothesis_offset import HypothesisOffset
+from geofix.filters.offset_sums import ResidualSums
 from geofix.maps.grid import Grid
 from geofix.measurement import (
     hypotheses_log_likelihood,
@@ -150,16 +151,14 @@ class TerrainLikelihood:
                 )
             return hypotheses_log_likelihood(grid, positions, *args, var, obs.bias_var, None, modes)
         # each particle's own offsets, N(b_ik, P_k): the map read once for every rate
-        if local:
-            reads = local_field_reads(grid, positions, obs.heading, obs.offsets, sides)
-        else:
+        if not local:
             predicted = predict_measurements(grid, positions, obs.heading, obs.offsets)
+            sums = ResidualSums.of(predicted, obs.values, var, modes)
+            return offset.marginal(sums.log_likelihood)
+        reads = local_field_reads(grid, positions, obs.heading, obs.offsets, sides)
 
         def given(bias_var, shift) -> np.ndarray:
-            if local:
-                return local_field_from_reads(reads, obs.values, var, bias_var, shift, modes)
-            shifted = predicted + np.asarray(shift, dtype=float)[..., None]
-            return log_likelihood(shifted, obs.values, var, bias_var, modes)
+            return local_field_from_reads(reads, obs.values, var, bias_var, shift, modes)
 
         return offset.marginal(given)
 

@@ -1,0 +1,155 @@
+r"""A ping's residual sums, read once, for every offset a hypothesis may carry.
+
+A filter whose hypotheses carry their own common offset (:mod:`.hypothesis_offset`)
+weighs each ping once per offset rate: the hypothesis's residuals ``d = y - h(x)``
+shifted by its offset mean ``b`` under that rate's variance ``P``. Every such
+likelihood, and the offsets' own Kalman step, depends on the shifted residuals only
+through a few sums over the beams that the shift enters linearly. With ``w_b`` each
+valid beam's inverse variance (0 off the map or for a missing beam) and ``M`` the
+columns of a map error's shapes across the swath:
+
+- ``S = sum w``, ``A = sum w d``, ``Q = sum w d^2``;
+- ``m1 = M^T W 1``, ``md = M^T W d`` and ``G = M^T W M``;
+
+then ``r = d - b`` has ``sum w r = A - b S``, ``sum w r^2 = Q - 2 b A + b^2 S`` and
+``M^T W r = md - b m1``. The sums are formed once per ping (one pass over hypotheses
+and beams); each rate's likelihood is then a few operations per hypothesis, the same
+value as :func:`geofix.measurement.log_likelihood` on the shifted predictions (to
+rounding).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geofix.measurement import OFF_MAP_LOG_LIKELIHOOD
+
+
+@dataclass(frozen=True)
+class ResidualSums:
+    """The sums over one ping's beams of every hypothesis's residuals.
+
+    Attributes
+    ----------
+    weight : numpy.ndarray
+        ``(m,)`` ``S``, the valid beams' summed inverse variance (map units^-2).
+    linear : numpy.ndarray
+        ``(m,)`` ``A``, the inverse-variance-weighted sum of residuals (map units^-1).
+    square : numpy.ndarray
+        ``(m,)`` ``Q``, the weighted sum of squared residuals (dimensionless).
+    off_map : numpy.ndarray
+        ``(m,)`` beams measured but predicted off the map.
+    shape : tuple
+        The hypotheses' shape (``m`` is its product).
+    mode_weight, mode_linear : numpy.ndarray or None
+        ``(m, c)`` ``M^T W 1`` (map units^-1) and ``M^T W d`` (dimensionless) of the map
+        error's shape columns (None without any).
+    mode_gram : numpy.ndarray or None
+        ``(m, c, c)`` ``M^T W M`` (dimensionless).
+    """
+
+    weight: np.ndarray
+    linear: np.ndarray
+    square: np.ndarray
+    off_map: np.ndarray
+    shape: tuple
+    mode_weight: np.ndarray | None = None
+    mode_linear: np.ndarray | None = None
+    mode_gram: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, predicted, measured, noise_var, modes=None) -> ResidualSums:
+        """The sums of every hypothesis's residuals.
+
+        Parameters
+        ----------
+        predicted : numpy.ndarray
+            ``(..., b)`` predicted values (NaN off the map), map units.
+        measured : numpy.ndarray
+            ``(b,)`` measured values (NaN = missing beam), map units.
+        noise_var : float or numpy.ndarray
+            Per-beam variance, scalar, ``(b,)`` or per hypothesis ``(..., b)``, map
+            units squared; it must not depend on the offset.
+        modes : numpy.ndarray, optional
+            ``(b, c)`` shapes of a map error across the beams times their 1-sigma, map
+            units.
+        """
+        measured = np.asarray(measured, dtype=float)
+        predicted = np.asarray(predicted, dtype=float)
+        beams = measured.shape[0]
+        residual = measured - predicted.reshape(-1, beams)
+        valid = np.isfinite(residual)
+        inv_var = 1.0 / np.asarray(noise_var, dtype=float)
+        if inv_var.ndim > 1:
+            inv_var = inv_var.reshape(-1, beams)
+        w = np.where(valid, inv_var, 0.0)
+        d = np.where(valid, residual, 0.0)
+        wd = w * d
+        sums = {
+            "weight": w.sum(axis=-1),
+            "linear": wd.sum(axis=-1),
+            "square": np.einsum("mb,mb->m", wd, d),
+            "off_map": (~valid & np.isfinite(measured)).sum(axis=-1),
+            "shape": predicted.shape[:-1],
+        }
+        if modes is not None:
+            modes = np.asarray(modes, dtype=float).reshape(beams, -1)
+            c = modes.shape[1]
+            products = (modes[:, :, None] * modes[:, None, :]).reshape(beams, -1)
+            sums["mode_weight"] = w @ modes
+            sums["mode_linear"] = wd @ modes
+            sums["mode_gram"] = (w @ products).reshape(-1, c, c)
+        return cls(**sums)
+
+    def log_likelihood(self, bias_var: float, shift) -> np.ndarray:
+        """The ping's log-likelihood of every hypothesis with its offset ``N(shift, P)``.
+
+        Parameters
+        ----------
+        bias_var : float
+            ``P``, the offset's variance, map units squared (0: the offset known).
+        shift : float or numpy.ndarray
+            The offsets' means, scalar or the hypotheses' shape, map units.
+
+        Returns
+        -------
+        numpy.ndarray
+            The hypotheses' shape: log-likelihoods up to a constant (nats), as
+            :func:`geofix.measurement.log_likelihood` on predictions plus ``shift``.
+        """
+        b = np.broadcast_to(np.asarray(shift, dtype=float), self.shape).reshape(-1)
+        s, a = self.weight, self.linear
+        t = a - b * s
+        quad = self.square - b * (2.0 * a - b * s)
+        if self.mode_gram is None:
+            explained = bias_var * t * t / (1.0 + bias_var * s)
+            logdet = np.log1p(bias_var * s)
+        else:
+            explained, logdet = self._modes_explained(bias_var, b, t)
+        ll = -0.5 * (quad - explained + logdet) + OFF_MAP_LOG_LIKELIHOOD * self.off_map
+        return ll.reshape(self.shape)
+
+    def _modes_explained(self, bias_var: float, b: np.ndarray, t: np.ndarray):
+        """``u^T (I + Z^T W Z)^-1 u`` and ``log det (I + Z^T W Z)`` with the offset's column.
+
+        ``Z = [sqrt(P) 1, M]`` (Woodbury's identity and the matrix determinant lemma, as
+        :func:`geofix.measurement.low_rank_log_likelihood`).
+        """
+        root = np.sqrt(max(float(bias_var), 0.0))
+        m, c = self.mode_weight.shape
+        cross = root * self.mode_weight  # (m, c): M^T W sqrt(P) 1
+        inner = np.empty((m, c + 1, c + 1))
+        inner[:, 0, 0] = 1.0 + bias_var * self.weight
+        inner[:, 0, 1:] = cross
+        inner[:, 1:, 0] = cross
+        inner[:, 1:, 1:] = self.mode_gram + np.eye(c)
+        u = np.empty((m, c + 1))
+        u[:, 0] = root * t
+        u[:, 1:] = self.mode_linear - b[:, None] * self.mode_weight
+        explained = np.einsum("mc,mc->m", u, np.linalg.solve(inner, u[..., None])[..., 0])
+        return explained, np.linalg.slogdet(inner)[1]
+
+
+__all__ = ["ResidualSums"]
