@@ -11,6 +11,7 @@ from conftest import gravity_dvl_mission_data, small_mission_data
 from geofix.errors import ConfigError
 from geofix.filters.base import Observation
 from geofix.filters.hypothesis_offset import (
+    RATE_POOLING,
     HypothesisOffset,
     mixed_offsets,
     regridded_offsets,
@@ -303,7 +304,7 @@ def test_shared_rates_weigh_a_still_offset_and_refuse_an_unknown_setting():
     own = HypothesisOffset.start(2, obs, 10.0)
     assert own.models == 2 and not own.shared_steady
     for spec in ("pmf", "pf", "mpf"):
-        with pytest.raises(ConfigError, match="offset_rates must be own or shared"):
+        with pytest.raises(ConfigError, match="offset_rates must be one of own, shared, pooled"):
             parse_method_spec(f"{spec}:offset_rates=mine")
 
 
@@ -377,6 +378,27 @@ def _steady_pings(rates: str, pings: int = 120, dt: float = 20.0):
     return log_weight[1] - log_weight[0]
 
 
+def test_pooled_rates_move_each_hypothesiss_fast_rate_toward_the_posteriors():
+    # rates (still, declared, fast) of two hypotheses, weights 0.8 and 0.2
+    prob = np.array([[0.6, 0.1], [0.2, 0.3], [0.2, 0.6]])
+    common = dict(means=np.zeros((3, 2)), variances=np.ones(3), walks=np.array([0, 1e-3, 1e-2]))
+    shared = HypothesisOffset(**common, log_prob=np.log(prob), shared_steady=True)
+    pooled = HypothesisOffset(**common, log_prob=np.log(prob), shared_steady=True, pooling=0.5)
+    weights = np.array([0.8, 0.2])
+    split = np.exp(shared.shared(np.log(weights)).log_prob)
+    after = np.exp(pooled.shared(np.log(weights)).log_prob)
+    # the geometric mean of each one's (steady split shared) and the posterior's, normalised
+    posterior = split @ weights
+    want = np.sqrt(split * posterior[:, None])
+    np.testing.assert_allclose(after, want / want.sum(axis=0))
+    # the light hypothesis's fast rate (0.6) moves toward the posterior's (0.28)
+    assert posterior[2] < after[2, 1] < split[2, 1] - 0.1
+    assert pooled.shared(np.log(weights)).pooling == 0.5
+    obs = _obs([1.0], 1.0, bias_var=9.0, walk=0.1)
+    assert HypothesisOffset.start(2, obs, 10.0, "pooled").pooling == RATE_POOLING
+    assert HypothesisOffset.start(2, obs, 10.0, "shared").pooling == 0.0
+
+
 def test_a_hypothesis_off_the_track_cannot_take_a_drift_the_posterior_does_not_see():
     """With shared rates the drifting hypothesis is judged by the steady rate the track
     shows, so it loses more weight than when it picks its own rate."""
@@ -384,3 +406,6 @@ def test_a_hypothesis_off_the_track_cannot_take_a_drift_the_posterior_does_not_s
     shared = _steady_pings("shared")
     # measured: -2.2 nats with its own rates, -8.0 shared
     assert shared < own - 4.0, (own, shared)
+    # pooled, it cannot take the fast rate the posterior does not see either (-13.4)
+    pooled = _steady_pings("pooled")
+    assert pooled < shared - 3.0, (shared, pooled)

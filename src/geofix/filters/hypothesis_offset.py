@@ -49,8 +49,14 @@ from geofix.memory import cells_bytes, check_allocation
 
 #: How a filter's hypotheses weigh the offset's walk rates (its ``offset_rates`` setting):
 #: ``own``, each by its own residuals; ``shared``, a still offset beside the declared and
-#: fast walks, the steady two weighed by the posterior over every hypothesis.
-OFFSET_RATES = ("own", "shared")
+#: fast walks, the steady two weighed by the posterior over every hypothesis; ``pooled``,
+#: as ``shared`` and then every rate's probability pooled with the posterior's
+#: (:data:`RATE_POOLING`).
+OFFSET_RATES = ("own", "shared", "pooled")
+#: With ``offset_rates=pooled``, the weight of the posterior's rate probabilities in each
+#: hypothesis's (a geometric pool, ``log p_ik <- (1 - a) log p_ik + a log q_k``
+#: normalised): 0 would leave each hypothesis its own rates, 1 make the rates the mission's.
+RATE_POOLING = 0.5
 
 
 def check_offset_rates(method: str, value: str) -> None:
@@ -64,7 +70,9 @@ def check_offset_rates(method: str, value: str) -> None:
         The setting.
     """
     if value not in OFFSET_RATES:
-        raise ConfigError(f"{method}: offset_rates must be own or shared, got {value!r}")
+        raise ConfigError(
+            f"{method}: offset_rates must be one of {', '.join(OFFSET_RATES)}, got {value!r}"
+        )
 
 
 def walk_factors(fast: float) -> tuple[float, ...]:
@@ -151,6 +159,11 @@ class HypothesisOffset:
         dt`` over a short ``dt`` and never wanders beyond its prior: a fast rate follows a
         map error that comes and goes along the track without carrying the offset far
         from the level the readings and the map share.
+    shared_steady : bool
+        The steady rates' split is the posterior's (``offset_rates`` ``shared`` or
+        ``pooled``: :meth:`shared`).
+    pooling : float
+        With ``offset_rates=pooled``, :data:`RATE_POOLING`; 0 otherwise.
     """
 
     means: np.ndarray
@@ -159,6 +172,7 @@ class HypothesisOffset:
     log_prob: np.ndarray
     stationary: float = float("inf")
     shared_steady: bool = False
+    pooling: float = 0.0
 
     @classmethod
     def single(cls, mean, var: float, walk: float) -> HypothesisOffset:
@@ -190,10 +204,11 @@ class HypothesisOffset:
             rate follows an error that comes and goes without carrying the offset far
             from the level the readings and the map share.
         rates : str
-            ``own`` or ``shared`` (:data:`OFFSET_RATES`): with ``shared`` and a faster
-            rate, a still offset (walk 0) is weighed beside the two, the three equally
-            likely a priori, and the steady two are weighed by the whole posterior
-            (:meth:`shared`).
+            ``own``, ``shared`` or ``pooled`` (:data:`OFFSET_RATES`): with ``shared`` and
+            a faster rate, a still offset (walk 0) is weighed beside the two, the three
+            equally likely a priori, and the steady two are weighed by the whole
+            posterior (:meth:`shared`); ``pooled`` then pools every rate's probability
+            with the posterior's (:data:`RATE_POOLING`).
         """
         if not (obs.bias_per_hypothesis and obs.bias_var > 0):
             return None
@@ -203,7 +218,7 @@ class HypothesisOffset:
         factors = np.asarray(walk_factors(fast), dtype=float)
         k = 1 if walk <= 0 else factors.size
         factors = factors[:k]
-        steady = rates == "shared" and k > 1
+        steady = rates in ("shared", "pooled") and k > 1
         if steady:
             factors, k = np.concatenate([[0.0], factors]), k + 1
         log_prior = np.full((k, *([1] * len(shape))), -np.log(k))
@@ -214,6 +229,7 @@ class HypothesisOffset:
             np.broadcast_to(log_prior, (k, *shape)).copy(),
             float(obs.bias_var) if k > 1 else float("inf"),
             steady,
+            RATE_POOLING if steady and rates == "pooled" else 0.0,
         )
 
     @property
@@ -346,6 +362,11 @@ class HypothesisOffset:
         (last) rate and of the steady ones together, and the split of the latter between
         the still offset and the declared walk becomes their posterior over all
         hypotheses: ``q_k = sum_i w_i p_ik / sum_i w_i (p_i0 + p_i1)``, ``k`` = 0, 1.
+        With :attr:`pooling` ``a`` above 0 (``offset_rates=pooled``), every rate's
+        probability is then pooled with the posterior's, ``log p_ik <- (1 - a) log p_ik
+        + a log q_k`` normalised, ``q_k = sum_i w_i p_ik``: a hypothesis off the track
+        weighs the fast rate partly as the posterior does instead of explaining its
+        residuals by a map error it alone sees.
 
         Parameters
         ----------
@@ -360,11 +381,14 @@ class HypothesisOffset:
         if not self.shared_steady:
             return self
         lp = self.log_prob.reshape(self.models, -1)
+        weight = np.asarray(log_weight, dtype=float).reshape(-1)
         steady = logsumexp(lp[:-1], axis=0)
-        mass = np.asarray(log_weight, dtype=float).reshape(-1) + steady
+        mass = weight + steady
         q = logsumexp(lp[:-1] - steady + mass, axis=1)
         q = q - logsumexp(q)
         log_prob = np.vstack([steady + q[:, None], lp[-1:]])
+        if self.pooling > 0:
+            log_prob = _pooled(log_prob, weight, self.pooling)
         return replace(self, log_prob=log_prob.reshape(self.log_prob.shape))
 
     def _log_prior(self) -> np.ndarray:
@@ -441,6 +465,27 @@ def shared_offsets(state):
         offset=None if offset is None else offset.shared(log_weight),
         field_offsets=tuple(None if o is None else o.shared(log_weight) for o in fields),
     )
+
+
+def _pooled(log_prob: np.ndarray, log_weight: np.ndarray, pooling: float) -> np.ndarray:
+    """Each hypothesis's rate log-probabilities pooled with the posterior's.
+
+    ``log p_ik <- (1 - a) log p_ik + a log q_k``, normalised over ``k``, with
+    ``q_k = sum_i w_i p_ik`` (``w`` the posterior weights).
+
+    Parameters
+    ----------
+    log_prob : numpy.ndarray
+        ``(K, m)`` every hypothesis's rate log-probabilities.
+    log_weight : numpy.ndarray
+        ``(m,)`` the hypotheses' posterior log-weights (normalised or not).
+    pooling : float
+        ``a`` in ``(0, 1]``.
+    """
+    q = logsumexp(log_prob + log_weight, axis=1)
+    q = q - logsumexp(q)
+    pooled = (1.0 - pooling) * log_prob + pooling * q[:, None]
+    return pooled - logsumexp(pooled, axis=0)
 
 
 def _returned(log_prob: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
@@ -522,6 +567,7 @@ def regridded_offsets(mean: np.ndarray, old, new, shape) -> np.ndarray:
 
 __all__ = [
     "OFFSET_RATES",
+    "RATE_POOLING",
     "WALK_RETURN",
     "HypothesisOffset",
     "check_offset_rates",

@@ -230,8 +230,8 @@ class ParticleSettings(RecursiveFilter):
         stepper's settings (None, the default: every ping).
     offset_rates : str
         How the particles weigh the offset's walk rates, as
-        :class:`geofix.filters.pmf.Pmf`'s: ``own`` (the default) or ``shared``
-        (:data:`geofix.filters.hypothesis_offset.OFFSET_RATES`).
+        :class:`geofix.filters.pmf.Pmf`'s: ``own`` (the default), ``shared`` or
+        ``pooled`` (:data:`geofix.filters.hypothesis_offset.OFFSET_RATES`).
     """
 
     name: ClassVar[str] = "particles"

@@ -278,7 +278,10 @@ class Pmf(RecursiveFilter):
         each by its own residuals; ``shared``, a still offset beside the declared and
         fast walks, the choice between the steady two (still or declared) made by the
         posterior over every hypothesis, so that a hypothesis off the track cannot
-        explain its residuals by a drift the others do not see.
+        explain its residuals by a drift the others do not see; ``pooled``, as
+        ``shared`` and then every rate's probability pooled with the posterior's
+        (:data:`geofix.filters.hypothesis_offset.RATE_POOLING`), so that it cannot explain
+        them by a fast map error the others do not see either.
 
     References
     ----------
