@@ -123,33 +123,39 @@ class ResidualSums:
         s, a = self.weight, self.linear
         t = a - b * s
         quad = self.square - b * (2.0 * a - b * s)
-        if self.mode_gram is None:
+        weight, linear, gram = self.mode_weight, self.mode_linear, self.mode_gram
+        if weight is None or linear is None or gram is None:
             explained = bias_var * t * t / (1.0 + bias_var * s)
             logdet = np.log1p(bias_var * s)
         else:
-            explained, logdet = self._modes_explained(bias_var, b, t)
+            u = np.column_stack(
+                [np.sqrt(max(float(bias_var), 0.0)) * t, linear - b[:, None] * weight]
+            )
+            explained, logdet = _explained(_inner(bias_var, s, weight, gram), u)
         ll = -0.5 * (quad - explained + logdet) + OFF_MAP_LOG_LIKELIHOOD * self.off_map
         return ll.reshape(self.shape)
 
-    def _modes_explained(self, bias_var: float, b: np.ndarray, t: np.ndarray):
-        """``u^T (I + Z^T W Z)^-1 u`` and ``log det (I + Z^T W Z)`` with the offset's column.
 
-        ``Z = [sqrt(P) 1, M]`` (Woodbury's identity and the matrix determinant lemma, as
-        :func:`geofix.measurement.low_rank_log_likelihood`).
-        """
-        root = np.sqrt(max(float(bias_var), 0.0))
-        m, c = self.mode_weight.shape
-        cross = root * self.mode_weight  # (m, c): M^T W sqrt(P) 1
-        inner = np.empty((m, c + 1, c + 1))
-        inner[:, 0, 0] = 1.0 + bias_var * self.weight
-        inner[:, 0, 1:] = cross
-        inner[:, 1:, 0] = cross
-        inner[:, 1:, 1:] = self.mode_gram + np.eye(c)
-        u = np.empty((m, c + 1))
-        u[:, 0] = root * t
-        u[:, 1:] = self.mode_linear - b[:, None] * self.mode_weight
-        explained = np.einsum("mc,mc->m", u, np.linalg.solve(inner, u[..., None])[..., 0])
-        return explained, np.linalg.slogdet(inner)[1]
+def _inner(bias_var: float, weight: np.ndarray, mode_weight: np.ndarray, gram: np.ndarray):
+    """``(m, c + 1, c + 1)`` ``I + Z^T W Z`` of ``Z = [sqrt(P) 1, M]`` from the sums."""
+    m, c = mode_weight.shape
+    cross = np.sqrt(max(float(bias_var), 0.0)) * mode_weight  # (m, c): M^T W sqrt(P) 1
+    inner = np.empty((m, c + 1, c + 1))
+    inner[:, 0, 0] = 1.0 + bias_var * weight
+    inner[:, 0, 1:] = cross
+    inner[:, 1:, 0] = cross
+    inner[:, 1:, 1:] = gram + np.eye(c)
+    return inner
+
+
+def _explained(inner: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``u^T inner^-1 u`` and ``log det inner`` of every hypothesis.
+
+    Woodbury's identity and the matrix determinant lemma, as
+    :func:`geofix.measurement.low_rank_log_likelihood`.
+    """
+    explained = np.einsum("mc,mc->m", u, np.linalg.solve(inner, u[..., None])[..., 0])
+    return explained, np.linalg.slogdet(inner)[1]
 
 
 __all__ = ["ResidualSums"]
