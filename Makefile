@@ -20,7 +20,8 @@ test: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks examples docs/conf.py
 	$(BIN)/ruff format --check src tests benchmarks examples docs/conf.py
 	$(BIN)/mypy
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q -n 2 --dist loadfile -m "not serial"
+	$(BIN)/pytest -q -m serial
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks examples docs/conf.py

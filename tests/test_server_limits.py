@@ -48,6 +48,7 @@ def ping_times(client, grid, first: int, count: int) -> list[float]:
     return times
 
 
+@pytest.mark.serial  # it times pings against each other: another test beside it is noise
 def test_a_heavy_connection_does_not_stall_an_ordinary_one(terrain):
     # the updates run on threads, a heavy connection's on its own lower-priority ones:
     # the ordinary connection's ping, timed against its own unloaded pings in this run,
