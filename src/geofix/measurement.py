@@ -995,18 +995,29 @@ def low_rank_log_likelihood(predicted, measured, noise_var, common=None, own=Non
         if common is not None:
             own_common = weighted @ common
             top = np.concatenate([gram, own_common], axis=2)
-            bottom = np.concatenate([own_common.transpose(0, 2, 1), _gram(w, common)], axis=2)
+            bottom = np.concatenate(
+                [own_common.transpose(0, 2, 1), weighted_gram(w, common)], axis=2
+            )
             gram = np.concatenate([top, bottom], axis=1)
     else:
-        gram = _gram(w, common)
+        gram = weighted_gram(w, common)
     inner = np.eye(u.shape[-1]) + gram
     explained = np.einsum("mc,mc->m", u, np.linalg.solve(inner, u[..., None])[..., 0])
     ll = -0.5 * (quad - explained + np.linalg.slogdet(inner)[1])
     return (ll + OFF_MAP_LOG_LIKELIHOOD * off_map).reshape(shape)
 
 
-def _gram(w: np.ndarray, columns: np.ndarray) -> np.ndarray:
-    """``(m, c, c)`` ``Z^T W_i Z`` of common columns ``Z`` ``(b, c)`` for every row of ``w``."""
+def weighted_gram(w: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """``(m, c, c)`` ``Z^T W_i Z`` of common columns ``Z`` for every row of ``w``.
+
+    Parameters
+    ----------
+    w : numpy.ndarray
+        ``(m, b)`` each hypothesis's per-beam weights ``W_i`` (inverse variances, 0 for a
+        beam not used), map units^-2.
+    columns : numpy.ndarray
+        ``(b, c)`` columns ``Z`` common to every hypothesis, map units.
+    """
     products = (columns[:, :, None] * columns[:, None, :]).reshape(columns.shape[0], -1)
     c = columns.shape[1]
     return (w @ products).reshape(-1, c, c)

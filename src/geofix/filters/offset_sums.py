@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geofix.measurement import OFF_MAP_LOG_LIKELIHOOD
+from geofix.measurement import OFF_MAP_LOG_LIKELIHOOD, weighted_gram
 
 
 @dataclass(frozen=True)
@@ -96,11 +96,9 @@ class ResidualSums:
         }
         if modes is not None:
             modes = np.asarray(modes, dtype=float).reshape(beams, -1)
-            c = modes.shape[1]
-            products = (modes[:, :, None] * modes[:, None, :]).reshape(beams, -1)
             sums["mode_weight"] = w @ modes
             sums["mode_linear"] = wd @ modes
-            sums["mode_gram"] = (w @ products).reshape(-1, c, c)
+            sums["mode_gram"] = weighted_gram(w, modes)
         return cls(**sums)
 
     def log_likelihood(self, bias_var: float, shift) -> np.ndarray:
