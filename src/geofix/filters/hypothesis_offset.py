@@ -19,8 +19,9 @@ removed does.
 How fast the offset walks is not always known in advance: a tide or a gravimeter drifts
 slowly, and a map error correlated over kilometres reads, along a track, as an offset that
 moves many times faster. A filter given a second, faster rate (``fast_offset_walk``,
-:func:`walk_factors`) has each hypothesis carry one such filter per rate and each rate's
-probability, multiplied at
+:func:`walk_factors`), and beside it a slower one (``slow_offset_walk``,
+:data:`SLOW_OFFSET_WALK`), has each hypothesis carry one such filter per rate and each
+rate's probability, multiplied at
 every ping by the likelihood of its residuals under that rate: the hypothesis's
 likelihood is the mixture over the rates (:meth:`HypothesisOffset.marginal`), the exact
 Bayesian answer for a rate that is one of them and fixed along a hypothesis's path, with
@@ -75,7 +76,17 @@ def check_offset_rates(method: str, value: str) -> None:
         )
 
 
-def walk_factors(fast: float) -> tuple[float, ...]:
+#: The slower walk rate a hypothesis weighs beside the declared one wherever it weighs a
+#: faster one, as a factor on the declared walk (the filters' ``slow_offset_walk`` when
+#: unset): with the default declared walk (1e-3 map units squared per second) 1e-5, about
+#: 0.2 m or mGal in an hour, what a tide or a gravimeter drifts. The declared walk is
+#: sized for a gravimeter drifting 2 mGal an hour, and an offset that stands still reads
+#: almost as well under it; weighed beside it, the slow rate gives such an offset its
+#: information back (the section *Imperfect maps*).
+SLOW_OFFSET_WALK = 0.01
+
+
+def walk_factors(fast: float, slow: float = 0.0) -> tuple[float, ...]:
     """The walk rates a hypothesis weighs, as factors on the declared walk.
 
     Parameters
@@ -84,15 +95,22 @@ def walk_factors(fast: float) -> tuple[float, ...]:
         A second, faster rate as a factor on the declared walk (0: the declared rate
         alone). A map error correlated over kilometres reads, along a track, as an offset
         that moves faster than a tide or a gravimeter drifts.
+    slow : float
+        A slower rate weighed beside the two when ``fast`` is above 0, as a factor on the
+        declared walk below 1 (0: none; :data:`SLOW_OFFSET_WALK`).
 
     Returns
     -------
     tuple of float
-        ``(1,)`` or ``(1, fast)``.
+        ``(1,)``, ``(1, fast)`` or ``(slow, 1, fast)``: the fastest last.
     """
     if not (np.isfinite(fast) and (fast == 0 or fast > 1)):
         raise ConfigError(f"fast_offset_walk must be 0 or a factor above 1, got {fast}")
-    return (1.0,) if fast == 0 else (1.0, float(fast))
+    if not (np.isfinite(slow) and 0 <= slow < 1):
+        raise ConfigError(f"slow_offset_walk must be 0 or a factor in (0, 1), got {slow}")
+    if fast == 0:
+        return (1.0,)
+    return (1.0, float(fast)) if slow == 0 else (float(slow), 1.0, float(fast))
 
 
 def check_offset_walk(method: str, walk: float | None) -> None:
@@ -184,7 +202,12 @@ class HypothesisOffset:
 
     @classmethod
     def start(
-        cls, shape, obs: Observation, fast: float | None = None, rates: str = "own"
+        cls,
+        shape,
+        obs: Observation,
+        fast: float | None = None,
+        rates: str = "own",
+        slow: float | None = None,
     ) -> HypothesisOffset | None:
         """The prior ``N(0, obs.bias_var)`` for every hypothesis, or None without one.
 
@@ -205,17 +228,23 @@ class HypothesisOffset:
             from the level the readings and the map share.
         rates : str
             ``own``, ``shared`` or ``pooled`` (:data:`OFFSET_RATES`): with ``shared`` and
-            a faster rate, a still offset (walk 0) is weighed beside the two, the three
-            equally likely a priori, and the steady two are weighed by the whole
-            posterior (:meth:`shared`); ``pooled`` then pools every rate's probability
-            with the posterior's (:data:`RATE_POOLING`).
+            a faster rate, a still offset (walk 0) is weighed beside the others, all
+            equally likely a priori, and the steady ones (all but the fastest) are
+            weighed by the whole posterior (:meth:`shared`); ``pooled`` then pools every
+            rate's probability with the posterior's (:data:`RATE_POOLING`).
+        slow : float, optional
+            A slower walk rate beside the declared one wherever a faster one is weighed,
+            as a factor on ``bias_walk`` below 1 (the filter's ``slow_offset_walk``;
+            :func:`walk_factors`); None: :data:`SLOW_OFFSET_WALK`; 0: none. The rates are
+            equally likely a priori.
         """
         if not (obs.bias_per_hypothesis and obs.bias_var > 0):
             return None
         shape = (shape,) if np.ndim(shape) == 0 else tuple(shape)
         walk = float(obs.bias_walk)
         fast = obs.bias_fast_walk if fast is None else fast
-        factors = np.asarray(walk_factors(fast), dtype=float)
+        slow = SLOW_OFFSET_WALK if slow is None else slow
+        factors = np.asarray(walk_factors(fast, slow), dtype=float)
         k = 1 if walk <= 0 else factors.size
         factors = factors[:k]
         steady = rates in ("shared", "pooled") and k > 1
@@ -568,6 +597,7 @@ def regridded_offsets(mean: np.ndarray, old, new, shape) -> np.ndarray:
 __all__ = [
     "OFFSET_RATES",
     "RATE_POOLING",
+    "SLOW_OFFSET_WALK",
     "WALK_RETURN",
     "HypothesisOffset",
     "check_offset_rates",

@@ -210,6 +210,11 @@ class ParticleSettings(RecursiveFilter):
         rate alone). None (the default): the map kind's
         (:func:`geofix.filters.nuisance.default_fast_offset_walk`: 10 on a gravity map and
         for a depth map's multibeam pings, 0 for its profiles and on a magnetic map).
+    slow_offset_walk : float or None
+        A slower walk rate weighed beside the declared one wherever a faster one is, as
+        :class:`geofix.filters.pmf.Pmf`'s: a factor below 1 on the declared walk, None
+        (the default) :data:`geofix.filters.hypothesis_offset.SLOW_OFFSET_WALK` (0.01),
+        0 none.
     offset_walk : float or None
         The common offset's walk, map units squared per second, as
         :class:`geofix.filters.pmf.Pmf`'s: 0 an offset that does not move, None (the
@@ -250,6 +255,7 @@ class ParticleSettings(RecursiveFilter):
     ambiguity_mass: float = 0.05
     map_model: str = "imperfect"
     fast_offset_walk: float | None = None
+    slow_offset_walk: float | None = None
     offset_walk: float | None = None
     offset_pool: float = 0.0
     offset_rates: str = "own"
@@ -260,6 +266,8 @@ class ParticleSettings(RecursiveFilter):
             raise ConfigError(f"{self.name}: offset_pool must be finite and >= 0")
         if self.fast_offset_walk is not None:
             walk_factors(self.fast_offset_walk)
+        if self.slow_offset_walk is not None:
+            walk_factors(0.0, self.slow_offset_walk)
         check_offset_walk(self.name, self.offset_walk)
         check_offset_rates(self.name, self.offset_rates)
         check_offset_per_hypothesis(self.name, self.offset_per_hypothesis)
@@ -337,7 +345,9 @@ class ParticleSettings(RecursiveFilter):
 
     def started_offset(self, shape, obs: Observation) -> HypothesisOffset | None:
         """The particles' offsets at their first ping (:meth:`HypothesisOffset.start`)."""
-        return HypothesisOffset.start(shape, obs, self.fast_offset_walk, self.offset_rates)
+        return HypothesisOffset.start(
+            shape, obs, self.fast_offset_walk, self.offset_rates, self.slow_offset_walk
+        )
 
     def offset_moments(self, state, field: int | None = None) -> tuple[float, float] | None:
         """The posterior offset's mean and variance (map units), or None without one.

@@ -259,6 +259,14 @@ class Pmf(RecursiveFilter):
         rate alone). None (the default): the map kind's
         (:func:`geofix.filters.nuisance.default_fast_offset_walk`: 10 on a gravity map and
         for a depth map's multibeam pings, 0 for its profiles and on a magnetic map).
+    slow_offset_walk : float or None
+        A slower walk rate weighed beside the declared one wherever a faster one is, as a
+        factor on the declared walk below 1 (0: none). None (the default):
+        :data:`geofix.filters.hypothesis_offset.SLOW_OFFSET_WALK`, 0.01 (with the declared
+        1e-3, a walk of 1e-5 map units squared per second: about 0.2 m or mGal in an
+        hour). An offset that stands still (a datum, a steady gravimeter) reads almost as
+        well under the declared walk as standing; weighed beside it, the slow rate gives
+        the position the information such an offset leaves it.
     offset_walk : float or None
         Variance the common offset gains per second, map units squared per second (a
         tide, a datum, a gravimeter's drift); 0: an offset that does not move. None (the
@@ -320,6 +328,7 @@ class Pmf(RecursiveFilter):
     use_dvl: bool = True
     map_model: str = "imperfect"
     fast_offset_walk: float | None = None
+    slow_offset_walk: float | None = None
     offset_walk: float | None = None
     offset_rates: str = "own"
     offset_per_hypothesis: bool | None = None
@@ -327,6 +336,8 @@ class Pmf(RecursiveFilter):
     def __post_init__(self) -> None:
         if self.fast_offset_walk is not None:
             walk_factors(self.fast_offset_walk)
+        if self.slow_offset_walk is not None:
+            walk_factors(0.0, self.slow_offset_walk)
         check_offset_walk(self.name, self.offset_walk)
         check_offset_rates(self.name, self.offset_rates)
         check_offset_per_hypothesis(self.name, self.offset_per_hypothesis)
@@ -452,7 +463,9 @@ class Pmf(RecursiveFilter):
 
     def started_offset(self, shape, obs: Observation) -> HypothesisOffset | None:
         """The nodes' offsets at their first ping (:meth:`HypothesisOffset.start`)."""
-        return HypothesisOffset.start(shape, obs, self.fast_offset_walk, self.offset_rates)
+        return HypothesisOffset.start(
+            shape, obs, self.fast_offset_walk, self.offset_rates, self.slow_offset_walk
+        )
 
     def _update_fields(self, state: PmfState, obs: Observation, grid: Grid, fields) -> PmfState:
         """The primary ping (when it has a value) and every further field's, summed."""
