@@ -81,17 +81,13 @@ def _scenario_table(scen, count: int) -> tuple[list[list], dict]:
 
     grid = prepare_map(scen)
     trials = [_rows(simulate_trial(scen, grid, i), grid) for i in range(count)]
-    bounds = {
-        row: float(np.sqrt(np.mean([trial_crlb(*t[row]).recursive_var_m2 for t in trials])))
-        for row in ROWS
-    }
+    bounds = {row: _rms([trial_crlb(*t[row]).recursive_var_m2 for t in trials]) for row in ROWS}
     still = {
         row: _rms([offset_state_crlb(*t[row], offset_walk=0.0).recursive_var_m2 for t in trials])
         for row in ROWS
     }
     aware = {
-        row: float(np.sqrt(np.mean([offset_state_crlb(*t[row]).recursive_var_m2 for t in trials])))
-        for row in ROWS
+        row: _rms([offset_state_crlb(*t[row]).recursive_var_m2 for t in trials]) for row in ROWS
     }
     table = []
     outcome = {"bounds": bounds, "still": still, "aware": aware, "methods": {}}

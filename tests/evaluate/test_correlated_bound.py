@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_offset_bound import static_trial
 
 from conftest import gravity_dvl_mission_data, small_mission_data
 from geofix.errors import MemoryBudgetError
@@ -70,20 +71,7 @@ def _plane_trial(samples: int) -> tuple[Trial, Grid]:
     """
     _, x = np.indices((80, 80)) * 100.0
     grid = Grid(0.05 * x + 3000.0, 0.0, 0.0, 100.0, 100.0, kind="depth")
-    truth = np.column_stack([430.0 + 110.0 * np.arange(samples), np.full(samples, 2030.0)])
-    heading = np.full(samples, np.pi / 2)
-    trial = Trial(
-        truth=truth,
-        true_heading=heading,
-        indicated=truth,
-        indicated_heading=heading,
-        times=30.0 * np.arange(samples),
-        measured=grid.sample(truth[:, 0], truth[:, 1])[:, None],
-        offsets=np.zeros((1, 2)),
-        sigma_position=np.full(samples, 1e4),
-        noise_std=1.0,
-    )
-    return trial, grid
+    return static_trial(grid, 430.0 + 110.0 * np.arange(samples), noise_std=1.0), grid
 
 
 def test_on_a_plane_an_error_that_persists_tells_less_than_white_noise():

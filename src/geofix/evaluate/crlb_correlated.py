@@ -195,9 +195,9 @@ def _reading_covariance(
     cov = np.zeros((count + n * extra, count + n * extra))
     beam = cov[:count, :count]
     beam[np.diag_indices(count)] = beams.white
-    std = np.asarray(offset_std, float)
-    same = beams.field[:, None] == beams.field[None, :]
-    beam += np.where(same, std[beams.field][:, None] ** 2, 0.0)
+    for field, std in enumerate(np.asarray(offset_std, float)):
+        index = np.flatnonzero(beams.field == field)
+        beam[np.ix_(index, index)] += std**2
     if error_rms > 0:
         primary = np.flatnonzero(beams.field == 0)
         q = beams.footprint[primary]
