@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from geofix.filters.offset_sums import ResidualSums
-from geofix.measurement import OFF_MAP_LOG_LIKELIHOOD, log_likelihood
+from geofix.measurement import OFF_MAP_LOG_LIKELIHOOD, local_field_from_reads, log_likelihood
 
 BEAMS = 12
 
@@ -71,3 +71,26 @@ def test_a_large_common_shift_keeps_the_differences_between_hypotheses():
     np.testing.assert_allclose(
         got[on_map] - got[on_map][0], want[on_map] - want[on_map][0], atol=1e-7
     )
+
+
+@pytest.mark.parametrize("bias_var", [0.0, 0.3, 25.0])
+@pytest.mark.parametrize("with_modes", [False, True])
+def test_each_hypothesis_own_columns_match_the_local_field_likelihood(bias_var, with_modes):
+    # the local field variance: each hypothesis's own change within its share, two
+    # columns per hypothesis, marginalised beside the offset and the common shapes
+    rng = np.random.default_rng(6)
+    predicted, measured, var = _ping(rng)
+    shape = predicted.shape[:-1]
+    f0 = predicted.reshape(-1, BEAMS)
+    own = rng.normal(0.0, 1.5, (f0.shape[0], BEAMS, 2))
+    own[~np.isfinite(f0)] = 0.0  # as local_field_reads leaves a read off the map
+    modes = _modes(rng) if with_modes else None
+    shift = rng.normal(0.0, 8.0, shape)
+    got = ResidualSums.of(predicted, measured, var, modes, own).log_likelihood(bias_var, shift)
+    want = local_field_from_reads((f0, own, shape), measured, var, bias_var, shift, modes)
+    assert got.shape == shape
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)
+    # the own columns widen the likelihood: without them it is another number
+    plain = ResidualSums.of(predicted, measured, var, modes).log_likelihood(bias_var, shift)
+    on_map = np.isfinite(predicted.reshape(-1, BEAMS)).all(axis=1)
+    assert np.abs(plain.reshape(-1) - got.reshape(-1))[on_map].min() > 1e-6

@@ -326,7 +326,9 @@ class HypothesisOffset:
         spread = float(np.sum(w * (b - mean) ** 2))
         return mean, float(np.sum(w.sum(axis=1) * self.variances)) + spread
 
-    def updated(self, grid: Grid, positions, obs: Observation, predicted=None) -> HypothesisOffset:
+    def updated(
+        self, grid: Grid, positions, obs: Observation, predicted=None, sums=None
+    ) -> HypothesisOffset:
         """Each hypothesis's offsets after the ping (a scalar Kalman step per rate).
 
         ``b_ik <- b_ik + P_k T_ik / (1 + P_k S_i)``, ``T_ik = sum (y - h_i - b_ik) / v``,
@@ -349,6 +351,9 @@ class HypothesisOffset:
         predicted : numpy.ndarray, optional
             ``(..., b)`` the ping's every beam read at ``positions``, map units, when the
             filter has them already (read here otherwise).
+        sums : ResidualSums, optional
+            The ping's residual sums of those reads when the filter has them already
+            (its own shape columns are not used here).
         """
         positions = np.asarray(positions, dtype=float)
         count = int(np.prod(positions.shape[:-1]))
@@ -363,7 +368,8 @@ class HypothesisOffset:
             predicted = np.asarray(predicted, dtype=float)[..., use]
         var = np.broadcast_to(np.asarray(obs.noise_var, dtype=float), obs.values.shape)[use]
         # each rate's residual sums from the hypothesis's own, read once for every rate
-        sums = ResidualSums.of(predicted.reshape(count, -1), obs.values[use], var)
+        if sums is None:
+            sums = ResidualSums.of(predicted.reshape(count, -1), obs.values[use], var)
         b = self.means.reshape(self.models, count)
         s = sums.weight
         t = sums.linear - b * s

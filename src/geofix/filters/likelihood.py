@@ -34,7 +34,6 @@ from geofix.filters.offset_sums import ResidualSums
 from geofix.maps.grid import Grid
 from geofix.measurement import (
     hypotheses_log_likelihood,
-    local_field_from_reads,
     local_field_log_likelihood,
     local_field_reads,
     log_likelihood,
@@ -155,12 +154,9 @@ class TerrainLikelihood:
             predicted = predict_measurements(grid, positions, obs.heading, obs.offsets)
             sums = ResidualSums.of(predicted, obs.values, var, modes)
             return offset.marginal(sums.log_likelihood)
-        reads = local_field_reads(grid, positions, obs.heading, obs.offsets, sides)
-
-        def given(bias_var, shift) -> np.ndarray:
-            return local_field_from_reads(reads, obs.values, var, bias_var, shift, modes)
-
-        return offset.marginal(given)
+        f0, own, shape = local_field_reads(grid, positions, obs.heading, obs.offsets, sides)
+        sums = ResidualSums.of(f0.reshape(*shape, -1), obs.values, var, modes, own)
+        return offset.marginal(sums.log_likelihood)
 
     def nodes(
         self, grid: Grid, obs: Observation, state: PmfState
@@ -243,21 +239,22 @@ class TerrainLikelihood:
         """
         xy = ops.node_positions(*state.frame, state.shape)
         predicted = predict_measurements(grid, xy, obs.heading, obs.offsets)
-        if local:
+        if local:  # the map read once: each rate's likelihood from the ping's sums
             sides = (state.axes * state.spacing).T
-            reads = local_field_reads(grid, xy, obs.heading, obs.offsets, sides, predicted)
+            _, own, _ = local_field_reads(grid, xy, obs.heading, obs.offsets, sides, predicted)
+            sums = ResidualSums.of(predicted, obs.values, obs.noise_var, obs.map_modes, own)
+            updated = offset.updated(grid, xy, obs, predicted, sums)
+            return offset.marginal(sums.log_likelihood), updated
+        updated = offset.updated(grid, xy, obs, predicted)
 
         def given(bias_var, shift) -> np.ndarray:
-            if local:
-                args = (obs.values, obs.noise_var, bias_var, shift, obs.map_modes)
-                return local_field_from_reads(reads, *args)
             shifted = predicted + shift[..., None]
             var = obs.noise_var
             if self.discretisation_noise:
                 var = var + node_field_variance(shifted, obs.values)
             return log_likelihood(shifted, obs.values, var, bias_var, obs.map_modes)
 
-        return offset.marginal(given), offset.updated(grid, xy, obs, predicted)
+        return offset.marginal(given), updated
 
     def _nodes_reference(self, grid: Grid, obs: Observation, state: PmfState) -> np.ndarray:
         """Through the prediction array: a common offset, or a map read other than bilinear."""
