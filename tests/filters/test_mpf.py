@@ -260,3 +260,34 @@ def test_the_simulator_prior_centres_the_set_on_the_drawn_bias(small_mission):
     np.testing.assert_allclose(np.sqrt(np.diag(cov)), np.hypot([300, 200], 40), rtol=0.05)
     with pytest.raises(ConfigError, match="prior"):
         parse_method_spec("mpf:prior=oracle")
+
+
+def test_copies_that_carry_a_profiles_offsets_stay_on_their_paths(small_mission):
+    # the kernel move shifts every copy by about h sigma of the set (hundreds of metres
+    # here); a particle's own offset learnt from profile pings was learnt on its own
+    # path, so such a copy is only jittered within its share; a swath's offset its own
+    # ping tells, and the kernel move stays
+    from dataclasses import replace
+
+    from geofix.filters.hypothesis_offset import HypothesisOffset
+
+    scen = small_mission("mpf-paths")
+    grid = prepare_map(scen)
+    problem = simulate_trial(scen, grid, 0).problem(grid)
+    filt = Mpf(particles=4000)
+    state = filt.initialize(problem, np.random.default_rng(1))
+    count = state.dp.shape[0]
+    state = replace(state, dp=np.random.default_rng(2).normal(0.0, 300.0, (count, 2)))
+    assert near_gaussian(state.dp, state.weights)
+    # each particle's offset mean its own index: a copy's names its parent
+    named = replace(state, offset=HypothesisOffset.single(np.arange(count, dtype=float), 1.0, 0))
+
+    def moves(profile: bool) -> tuple[np.ndarray, float]:
+        out = filt._resample(replace(named, profile=profile), np.random.default_rng(3))
+        parent = out.offset.means[0].astype(int)
+        return np.hypot(*(out.dp - state.dp[parent]).T), out.spacing
+
+    jitter, spacing = moves(profile=True)
+    kernel, _ = moves(profile=False)
+    assert jitter.max() < 2.0 * spacing  # spacing / sqrt(12) per axis
+    assert np.median(kernel) > 5.0 * spacing  # the kernel move: off the path

@@ -225,8 +225,8 @@ class ParticleSettings(RecursiveFilter):
         with its neighbours' (weighted by a tent kernel, :func:`~geofix.filters.
         hypothesis_offset.pooled_offsets`), as the point-mass convolution mixes its
         nodes'; ``mpf`` then jitters its copies within their share instead of the kernel
-        move. 0 leaves each particle its own path's offset (``mpf``'s default; ``pf``'s
-        is 2, see :class:`Pf`). A map error
+        move (as it does on profile pings whatever the pool). 0 leaves each particle its
+        own path's offset (``mpf``'s default; ``pf``'s is 2, see :class:`Pf`). A map error
         correlated over more than a swath reads, along one path, as an offset that
         follows a misleading stretch of map; pooled, the neighbours' paths temper it.
     offset_per_hypothesis : bool or None
