@@ -94,17 +94,25 @@ def _singlebeam_state(spec: str):
 
 
 def test_mpf_pooling_keeps_each_copy_on_the_path_its_offset_was_learnt_on():
-    """With pooling, mpf jitters its copies within their share, not by the kernel move.
+    """With pooling or profile pings, mpf jitters its copies within their share.
 
     Each particle's offset is tagged with its index; a copy must stay within a few
     share widths of the particle it copies (the kernel move carries copies about half
-    the set's spread away).
+    the set's spread away). On single-beam pings every mpf jitters; unpooled, a set
+    whose last ping was a swath's takes the kernel move.
     """
-    for spec, near in (("mpf:offset_pool=2", True), ("mpf", False)):
+    cases = (  # spec, the last ping a profile's, the copies near their paths
+        ("mpf:offset_pool=2", True, True),
+        ("mpf", True, True),
+        ("mpf:offset_pool=2", False, True),
+        ("mpf", False, False),
+    )
+    for spec, profile, near in cases:
         filt, state = _singlebeam_state(spec)
+        assert state.profile  # single-beam pings
         count = state.dp.shape[0]
         tagged = dataclasses.replace(
-            state, offset=HypothesisOffset.single(np.arange(count), 1.0, 0)
+            state, offset=HypothesisOffset.single(np.arange(count), 1.0, 0), profile=profile
         )
         before = tagged.positions
         after = filt._resample(tagged, np.random.default_rng(1))

@@ -30,6 +30,7 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import gammaln
 
 from geofix import _likelihood_kernels as kernels
 from geofix._measurement_kernels import gaussian_log_likelihood
@@ -136,7 +137,12 @@ def residuals(grid: Grid, track, heading, offsets, measured, method: str = "bili
 
 
 def log_likelihood(
-    predicted: np.ndarray, measured: np.ndarray, noise_var, bias_var: float = 0.0, modes=None
+    predicted: np.ndarray,
+    measured: np.ndarray,
+    noise_var,
+    bias_var: float = 0.0,
+    modes=None,
+    dof: float = np.inf,
 ) -> np.ndarray:
     """Gaussian log-likelihood of the measured beams for every hypothesis.
 
@@ -158,6 +164,9 @@ def log_likelihood(
         ``(b, k)`` shapes of a map error common to the beams of the sample, each column
         one shape times its 1-sigma (map units): the likelihood is marginalised over
         them too (:func:`low_rank_log_likelihood`). None: none.
+    dof : float
+        Degrees of freedom of a Student-t likelihood of the ping (:func:`student_t`);
+        inf: the Gaussian.
 
     Returns
     -------
@@ -167,9 +176,9 @@ def log_likelihood(
     """
     if modes is not None:
         columns = _with_offset(modes, bias_var)
-        return low_rank_log_likelihood(predicted, measured, noise_var, columns)
-    if bias_var > 0:
-        return common_bias_log_likelihood(predicted, measured, noise_var, bias_var)
+        return low_rank_log_likelihood(predicted, measured, noise_var, columns, dof=dof)
+    if bias_var > 0 or np.isfinite(dof):
+        return common_bias_log_likelihood(predicted, measured, noise_var, bias_var, dof)
     measured = np.asarray(measured, dtype=float)
     flat = np.asarray(predicted, dtype=float).reshape(-1, measured.shape[0])
     ll = gaussian_log_likelihood(flat, measured, noise_var, OFF_MAP_LOG_LIKELIHOOD)
@@ -187,6 +196,7 @@ def hypotheses_log_likelihood(
     bias_var: float = 0.0,
     shift=None,
     modes=None,
+    dof: float = np.inf,
 ) -> np.ndarray:
     """Gaussian log-likelihood of the measured beams from every hypothesised position.
 
@@ -221,6 +231,9 @@ def hypotheses_log_likelihood(
     modes : numpy.ndarray, optional
         ``(b, k)`` map-error shapes marginalised over (:func:`log_likelihood`; through
         the prediction array).
+    dof : float
+        A Student-t likelihood's degrees of freedom (:func:`student_t`; through the
+        prediction array); inf: the Gaussian.
 
     Returns
     -------
@@ -229,12 +242,12 @@ def hypotheses_log_likelihood(
         :data:`OFF_MAP_LOG_LIKELIHOOD` each).
     """
     positions = np.asarray(positions, dtype=float)
-    reference = bias_var > 0 or shift is not None or modes is not None
+    reference = bias_var > 0 or shift is not None or modes is not None or np.isfinite(dof)
     if reference or grid.interpolation != "bilinear":
         predicted = predict_measurements(grid, positions, heading, offsets)
         if shift is not None:
             predicted = predicted + np.asarray(shift, dtype=float)[..., None]
-        return log_likelihood(predicted, measured, noise_var, bias_var, modes)
+        return log_likelihood(predicted, measured, noise_var, bias_var, modes, dof)
     bcol, brow, y, var = _measured_beams(grid, heading, offsets, measured, noise_var)
     px, py = _flat_xy(positions)
     out = np.empty(px.size)
@@ -256,6 +269,7 @@ def local_field_log_likelihood(
     bias_var: float = 0.0,
     shift=None,
     modes=None,
+    dof: float = np.inf,
 ) -> np.ndarray:
     r"""Log-likelihood of every hypothesis with the field's variation within its own share.
 
@@ -306,6 +320,9 @@ def local_field_log_likelihood(
     modes : numpy.ndarray, optional
         ``(b, k)`` map-error shapes common to the beams, marginalised over as further
         columns of ``D`` (through the prediction arrays).
+    dof : float
+        A Student-t likelihood's degrees of freedom (:func:`student_t`; through the
+        prediction arrays); inf: the Gaussian.
 
     Returns
     -------
@@ -315,11 +332,10 @@ def local_field_log_likelihood(
     """
     positions = np.asarray(positions, dtype=float)
     sides = np.asarray(sides, dtype=float).reshape(2, 2)
-    reference = bias_var > 0 or shift is not None or modes is not None
+    reference = bias_var > 0 or shift is not None or modes is not None or np.isfinite(dof)
     if reference or grid.interpolation != "bilinear":
-        return local_field_reference(
-            grid, positions, heading, offsets, measured, noise_var, sides, bias_var, shift, modes
-        )
+        args = (measured, noise_var, sides, bias_var, shift, modes, dof)
+        return local_field_reference(grid, positions, heading, offsets, *args)
     bcol, brow, y, var = _measured_beams(grid, heading, offsets, measured, noise_var)
     px, py = _flat_xy(positions)
     out = np.empty(px.size)
@@ -399,6 +415,7 @@ def local_field_reference(
     bias_var=0.0,
     shift=None,
     modes=None,
+    dof: float = np.inf,
 ) -> np.ndarray:
     """:func:`local_field_log_likelihood` from the prediction arrays (any map read).
 
@@ -429,6 +446,9 @@ def local_field_reference(
         ``(...)`` each hypothesis's own offset subtracted from its residuals, map units.
     modes : numpy.ndarray, optional
         ``(b, k)`` map-error shapes common to the beams, further columns of ``Z``.
+    dof : float
+        A Student-t likelihood's degrees of freedom (:func:`student_t`); inf: the
+        Gaussian.
 
     Returns
     -------
@@ -437,7 +457,7 @@ def local_field_reference(
         :data:`OFF_MAP_LOG_LIKELIHOOD` each).
     """
     reads = local_field_reads(grid, positions, heading, offsets, sides)
-    return local_field_from_reads(reads, measured, noise_var, bias_var, shift, modes)
+    return local_field_from_reads(reads, measured, noise_var, bias_var, shift, modes, dof)
 
 
 def local_field_reads(grid: Grid, positions, heading: float, offsets, sides, predicted=None):
@@ -480,7 +500,7 @@ def local_field_reads(grid: Grid, positions, heading: float, offsets, sides, pre
 
 
 def local_field_from_reads(
-    reads, measured, noise_var, bias_var=0.0, shift=None, modes=None
+    reads, measured, noise_var, bias_var=0.0, shift=None, modes=None, dof: float = np.inf
 ) -> np.ndarray:
     """:func:`local_field_reference` from its reads (:func:`local_field_reads`).
 
@@ -498,6 +518,9 @@ def local_field_from_reads(
         ``(...)`` each hypothesis's own offset added to its reads, map units.
     modes : numpy.ndarray, optional
         ``(b, k)`` map-error shapes common to the beams.
+    dof : float
+        A Student-t likelihood's degrees of freedom (:func:`student_t`); inf: the
+        Gaussian.
 
     Returns
     -------
@@ -509,7 +532,7 @@ def local_field_from_reads(
     if shift is not None:
         f0 = f0 + np.asarray(shift, dtype=float).reshape(-1, 1)
     common = _with_offset(modes, bias_var, measured.shape[0])
-    return low_rank_log_likelihood(f0, measured, noise_var, common, own).reshape(shape)
+    return low_rank_log_likelihood(f0, measured, noise_var, common, own, dof).reshape(shape)
 
 
 def shift_field_variance(
@@ -886,7 +909,9 @@ def inverse_trace(info: np.ndarray) -> np.ndarray:
         return np.where(singular, np.inf, trace / np.where(singular, 1.0, det))
 
 
-def common_bias_log_likelihood(predicted, measured, noise_var, bias_var: float) -> np.ndarray:
+def common_bias_log_likelihood(
+    predicted, measured, noise_var, bias_var: float, dof: float = np.inf
+) -> np.ndarray:
     r"""Log-likelihood marginalised over a Gaussian offset common to every beam.
 
     With ``y = h(x) + beta 1 + e``, ``beta ~ N(0, P)``, ``e ~ N(0, R)`` (``R`` diagonal,
@@ -912,6 +937,9 @@ def common_bias_log_likelihood(predicted, measured, noise_var, bias_var: float) 
         squared.
     bias_var : float
         ``P``, variance of the common offset, map units squared.
+    dof : float
+        A Student-t likelihood's degrees of freedom (:func:`student_t`); inf: the
+        Gaussian.
 
     Returns
     -------
@@ -929,10 +957,16 @@ def common_bias_log_likelihood(predicted, measured, noise_var, bias_var: float) 
     s = w.sum(axis=-1)
     t = (r * w).sum(axis=-1)
     quad = (r * r * w).sum(axis=-1) - bias_var * t * t / (1.0 + bias_var * s)
-    return -0.5 * quad - 0.5 * np.log1p(bias_var * s) + OFF_MAP_LOG_LIKELIHOOD * off_map
+    if np.isinf(dof):
+        ll = -0.5 * quad - 0.5 * np.log1p(bias_var * s)
+    else:
+        ll = student_t(quad, np.log1p(bias_var * s), valid.sum(axis=-1), dof)
+    return ll + OFF_MAP_LOG_LIKELIHOOD * off_map
 
 
-def low_rank_log_likelihood(predicted, measured, noise_var, common=None, own=None) -> np.ndarray:
+def low_rank_log_likelihood(
+    predicted, measured, noise_var, common=None, own=None, dof: float = np.inf
+) -> np.ndarray:
     r"""Log-likelihood with a residual covariance ``R + Z Z^T`` of low rank beyond ``R``.
 
     ``Z = [own_i, common]``: ``(b, c)`` columns common to every hypothesis (an offset
@@ -959,6 +993,9 @@ def low_rank_log_likelihood(predicted, measured, noise_var, common=None, own=Non
         ``(b, c)`` columns common to every hypothesis, map units.
     own : numpy.ndarray, optional
         ``(m, b, c')`` columns of each of the ``m`` flattened hypotheses, map units.
+    dof : float
+        A Student-t likelihood's degrees of freedom (:func:`student_t`); inf: the
+        Gaussian.
 
     Returns
     -------
@@ -987,8 +1024,10 @@ def low_rank_log_likelihood(predicted, measured, noise_var, common=None, own=Non
         common = np.asarray(common, dtype=float).reshape(beams, -1)
         parts_u.append((w * r) @ common)
     quad = (w * r * r).sum(axis=-1)
+    count = valid.sum(axis=-1)
     if not parts_u:
-        return (-0.5 * quad + OFF_MAP_LOG_LIKELIHOOD * off_map).reshape(shape)
+        ll = student_t(quad, 0.0, count, dof)
+        return (ll + OFF_MAP_LOG_LIKELIHOOD * off_map).reshape(shape)
     u = np.concatenate(parts_u, axis=-1)
     if own is not None:
         gram = weighted @ own
@@ -1003,8 +1042,50 @@ def low_rank_log_likelihood(predicted, measured, noise_var, common=None, own=Non
         gram = weighted_gram(w, common)
     inner = np.eye(u.shape[-1]) + gram
     explained = np.einsum("mc,mc->m", u, np.linalg.solve(inner, u[..., None])[..., 0])
-    ll = -0.5 * (quad - explained + np.linalg.slogdet(inner)[1])
+    ll = student_t(quad - explained, np.linalg.slogdet(inner)[1], count, dof)
     return (ll + OFF_MAP_LOG_LIKELIHOOD * off_map).reshape(shape)
+
+
+def student_t(quad, logdet, count, dof: float) -> np.ndarray:
+    r"""A ping's log-likelihood from its Mahalanobis form: Gaussian or Student-t.
+
+    With ``q`` the residuals' quadratic form in their covariance ``C`` and ``log det``
+    the part of ``log det C`` that differs between hypotheses, the Gaussian's
+    ``-0.5 (q + log det)``; with ``dof`` ``nu`` finite, the multivariate Student-t of
+    the same scale matrix, the Gaussian whose variance is scaled by one inverse-gamma
+    factor per ping (a ping whose beams are all off together, as a wrong sound speed or
+    a spike of the gravimeter makes them, is not weighed as many sigmas of evidence):
+
+    ``ln G((nu + n) / 2) - ln G(nu / 2) - (n / 2) ln(nu / 2) - ((nu + n) / 2) ln(1 + q / nu)
+    - 0.5 log det``
+
+    over the ``n`` valid beams; its constant is the t's less the Gaussian's dropped
+    ``-(n / 2) ln(2 pi)``, so that it tends to the Gaussian's number as ``nu`` grows
+    (hypotheses with different counts of valid beams stay comparable).
+
+    Parameters
+    ----------
+    quad : numpy.ndarray
+        ``q``, dimensionless.
+    logdet : numpy.ndarray or float
+        The log-determinant part, nats.
+    count : numpy.ndarray or int
+        Valid beams of each hypothesis.
+    dof : float
+        ``nu`` (inf: the Gaussian).
+
+    Returns
+    -------
+    numpy.ndarray
+        Log-likelihoods up to a constant common to the hypotheses, nats.
+    """
+    quad = np.asarray(quad, dtype=float)
+    if not np.isfinite(dof):
+        return -0.5 * (quad + logdet)
+    n = np.asarray(count, dtype=float)
+    half = 0.5 * (dof + n)
+    constant = gammaln(half) - gammaln(0.5 * dof) - 0.5 * n * np.log(0.5 * dof)
+    return constant - half * np.log1p(np.maximum(quad, 0.0) / dof) - 0.5 * np.asarray(logdet)
 
 
 def weighted_gram(w: np.ndarray, columns: np.ndarray) -> np.ndarray:

@@ -74,6 +74,26 @@ def check_field_variance(name: str, value: str) -> None:
         raise ConfigError(f"{name}: field_variance must be local or global, got {value!r}")
 
 
+def check_student_dof(name: str, value) -> None:
+    """Raise :class:`ConfigError` unless ``value`` is None or a finite number above 0.
+
+    Parameters
+    ----------
+    name : str
+        The filter's name, for the message.
+    value : object
+        The ``student_dof`` setting.
+    """
+    if value is None:
+        return
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    if not (ok and np.isfinite(value) and value > 0):
+        raise ConfigError(
+            f"{name}: student_dof must be a finite number above 0 (unset: the Gaussian), "
+            f"got {value!r}"
+        )
+
+
 @dataclass(frozen=True)
 class TerrainLikelihood:
     """The terrain (or gravity) measurement model of a grid or particle filter.
@@ -86,10 +106,15 @@ class TerrainLikelihood:
     field_variance : str
         ``global``: one field variance for every hypothesis; ``local``: each hypothesis's
         own, common to its beams (:data:`FIELD_VARIANCES`).
+    dof : float
+        Degrees of freedom of a Student-t likelihood per ping
+        (:func:`geofix.measurement.student_t`, the filters' ``student_dof``); inf: the
+        Gaussian. A hypothesis's offsets still take the Gaussian Kalman step.
     """
 
     discretisation_noise: bool = True
     field_variance: str = "global"
+    dof: float = np.inf
 
     def uses_local_field(self, side: float, cell: float) -> bool:
         """Whether a share of ``side`` metres on a map of ``cell`` metres takes the local variance.
@@ -143,20 +168,23 @@ class TerrainLikelihood:
         if self.discretisation_noise and spacing > 0 and not local:
             var = var + spread_field_variance(grid, positions, spacing, obs, rng)
         sides = spacing * np.eye(2)
+        dof = self.dof
         if offset is None:
             if local:
                 return local_field_log_likelihood(
-                    grid, positions, *args, var, sides, obs.bias_var, None, modes
+                    grid, positions, *args, var, sides, obs.bias_var, None, modes, dof
                 )
-            return hypotheses_log_likelihood(grid, positions, *args, var, obs.bias_var, None, modes)
+            return hypotheses_log_likelihood(
+                grid, positions, *args, var, obs.bias_var, None, modes, dof
+            )
         # each particle's own offsets, N(b_ik, P_k): the map read once for every rate
         if not local:
             predicted = predict_measurements(grid, positions, obs.heading, obs.offsets)
             sums = ResidualSums.of(predicted, obs.values, var, modes)
-            return offset.marginal(sums.log_likelihood)
-        f0, own, shape = local_field_reads(grid, positions, obs.heading, obs.offsets, sides)
-        sums = ResidualSums.of(f0.reshape(*shape, -1), obs.values, var, modes, own)
-        return offset.marginal(sums.log_likelihood)
+        else:
+            f0, own, shape = local_field_reads(grid, positions, obs.heading, obs.offsets, sides)
+            sums = ResidualSums.of(f0.reshape(*shape, -1), obs.values, var, modes, own)
+        return offset.marginal(self._given(sums))
 
     def nodes(
         self, grid: Grid, obs: Observation, state: PmfState
@@ -187,7 +215,8 @@ class TerrainLikelihood:
             return self._nodes_with_offsets(grid, obs, state, state.offset, local)
         if local:
             return self._nodes_local(grid, obs, state), None
-        if obs.bias_var > 0 or obs.map_modes is not None or grid.interpolation != "bilinear":
+        fused = obs.bias_var == 0 and obs.map_modes is None and grid.interpolation == "bilinear"
+        if not (fused and np.isinf(self.dof)):
             return self._nodes_reference(grid, obs, state), None
         # One compiled pass over nodes x beams (the reference path -- node_positions,
         # predict_measurements, node_field_variance, log_likelihood -- to ~1e-15 relative).
@@ -210,7 +239,8 @@ class TerrainLikelihood:
         nodes' differences); through the prediction arrays with a common offset or a map
         read other than bilinear.
         """
-        if obs.bias_var == 0 and obs.map_modes is None and grid.interpolation == "bilinear":
+        plain = obs.bias_var == 0 and obs.map_modes is None and grid.interpolation == "bilinear"
+        if plain and np.isinf(self.dof):
             u, v = state.node_offsets
             frame = (state.centre, state.axes, u, v)
             args = (obs.heading, obs.offsets, obs.values, obs.noise_var)
@@ -227,6 +257,7 @@ class TerrainLikelihood:
             sides,
             obs.bias_var,
             modes=obs.map_modes,
+            dof=self.dof,
         )
 
     def _nodes_with_offsets(
@@ -244,7 +275,7 @@ class TerrainLikelihood:
             _, own, _ = local_field_reads(grid, xy, obs.heading, obs.offsets, sides, predicted)
             sums = ResidualSums.of(predicted, obs.values, obs.noise_var, obs.map_modes, own)
             updated = offset.updated(grid, xy, obs, predicted, sums)
-            return offset.marginal(sums.log_likelihood), updated
+            return offset.marginal(self._given(sums)), updated
         updated = offset.updated(grid, xy, obs, predicted)
 
         def given(bias_var, shift) -> np.ndarray:
@@ -252,9 +283,15 @@ class TerrainLikelihood:
             var = obs.noise_var
             if self.discretisation_noise:
                 var = var + node_field_variance(shifted, obs.values)
-            return log_likelihood(shifted, obs.values, var, bias_var, obs.map_modes)
+            return log_likelihood(shifted, obs.values, var, bias_var, obs.map_modes, self.dof)
 
         return offset.marginal(given), updated
+
+    def _given(self, sums: ResidualSums):
+        """``(var, mean) -> log-likelihoods`` of the ping's sums, with this model's ``dof``."""
+        if np.isinf(self.dof):
+            return sums.log_likelihood
+        return lambda bias_var, shift: sums.log_likelihood(bias_var, shift, self.dof)
 
     def _nodes_reference(self, grid: Grid, obs: Observation, state: PmfState) -> np.ndarray:
         """Through the prediction array: a common offset, or a map read other than bilinear."""
@@ -263,7 +300,7 @@ class TerrainLikelihood:
         var = obs.noise_var  # a float or a read-only (b,) array: never changed in place
         if self.discretisation_noise:
             var = var + node_field_variance(predicted, obs.values)
-        return log_likelihood(predicted, obs.values, var, obs.bias_var, obs.map_modes)
+        return log_likelihood(predicted, obs.values, var, obs.bias_var, obs.map_modes, self.dof)
 
 
 def field_variance_particles(particles: int, beams: int) -> int:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geofix.measurement import OFF_MAP_LOG_LIKELIHOOD, weighted_gram
+from geofix.measurement import OFF_MAP_LOG_LIKELIHOOD, student_t, weighted_gram
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,8 @@ class ResidualSums:
         error's shape columns (None without any).
     mode_gram : numpy.ndarray or None
         ``(m, c, c)`` ``M^T W M`` (dimensionless).
+    count : numpy.ndarray or None
+        ``(m,)`` valid beams of each hypothesis (a Student-t likelihood's ``n``).
     """
 
     weight: np.ndarray
@@ -58,6 +60,7 @@ class ResidualSums:
     mode_weight: np.ndarray | None = None
     mode_linear: np.ndarray | None = None
     mode_gram: np.ndarray | None = None
+    count: np.ndarray | None = None
 
     @classmethod
     def of(cls, predicted, measured, noise_var, modes=None, own=None) -> ResidualSums:
@@ -97,6 +100,7 @@ class ResidualSums:
             "linear": wd.sum(axis=-1),
             "square": np.einsum("mb,mb->m", wd, d),
             "off_map": (~valid & np.isfinite(measured)).sum(axis=-1),
+            "count": valid.sum(axis=-1),
             "shape": predicted.shape[:-1],
         }
         if own is not None:
@@ -108,7 +112,7 @@ class ResidualSums:
             sums["mode_gram"] = weighted_gram(w, modes)
         return cls(**sums)
 
-    def log_likelihood(self, bias_var: float, shift) -> np.ndarray:
+    def log_likelihood(self, bias_var: float, shift, dof: float = np.inf) -> np.ndarray:
         """The ping's log-likelihood of every hypothesis with its offset ``N(shift, P)``.
 
         Parameters
@@ -117,6 +121,9 @@ class ResidualSums:
             ``P``, the offset's variance, map units squared (0: the offset known).
         shift : float or numpy.ndarray
             The offsets' means, scalar or the hypotheses' shape, map units.
+        dof : float
+            A Student-t likelihood's degrees of freedom
+            (:func:`geofix.measurement.student_t`); inf: the Gaussian.
 
         Returns
         -------
@@ -137,7 +144,9 @@ class ResidualSums:
                 [np.sqrt(max(float(bias_var), 0.0)) * t, linear - b[:, None] * weight]
             )
             explained, logdet = _explained(_inner(bias_var, s, weight, gram), u)
-        ll = -0.5 * (quad - explained + logdet) + OFF_MAP_LOG_LIKELIHOOD * self.off_map
+        count = 0 if self.count is None else self.count  # the sums of :meth:`of` have it
+        ll = student_t(quad - explained, logdet, count, dof)
+        ll = ll + OFF_MAP_LOG_LIKELIHOOD * self.off_map
         return ll.reshape(self.shape)
 
 

@@ -77,7 +77,7 @@ from geofix.filters.hypothesis_offset import (
     shared_offsets,
     walk_factors,
 )
-from geofix.filters.likelihood import TerrainLikelihood, check_field_variance
+from geofix.filters.likelihood import TerrainLikelihood, check_field_variance, check_student_dof
 from geofix.filters.motion import ErrorStateTrack, check_motion_model, takes_error_state
 from geofix.filters.nuisance import check_map_model
 from geofix.filters.particle_motion import (
@@ -237,6 +237,9 @@ class ParticleSettings(RecursiveFilter):
         How the particles weigh the offset's walk rates, as
         :class:`geofix.filters.pmf.Pmf`'s: ``own`` (the default), ``shared`` or
         ``pooled`` (:data:`geofix.filters.hypothesis_offset.OFFSET_RATES`).
+    student_dof : float or None
+        As :class:`geofix.filters.pmf.Pmf`'s: a Student-t likelihood per ping of that
+        many degrees of freedom (None, the default: the Gaussian).
     """
 
     name: ClassVar[str] = "particles"
@@ -260,8 +263,10 @@ class ParticleSettings(RecursiveFilter):
     offset_pool: float = 0.0
     offset_rates: str = "own"
     offset_per_hypothesis: bool | None = None
+    student_dof: float | None = None
 
     def __post_init__(self) -> None:
+        check_student_dof(self.name, self.student_dof)
         if not (np.isfinite(self.offset_pool) and self.offset_pool >= 0):
             raise ConfigError(f"{self.name}: offset_pool must be finite and >= 0")
         if self.fast_offset_walk is not None:
@@ -288,7 +293,8 @@ class ParticleSettings(RecursiveFilter):
     @property
     def likelihood(self) -> TerrainLikelihood:
         """The terrain measurement model of these settings."""
-        return TerrainLikelihood(self.discretisation_noise, self.field_variance)
+        dof = np.inf if self.student_dof is None else float(self.student_dof)
+        return TerrainLikelihood(self.discretisation_noise, self.field_variance, dof)
 
     @property
     def progressive(self) -> ProgressiveCorrection:

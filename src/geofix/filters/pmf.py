@@ -82,7 +82,12 @@ from geofix.filters.hypothesis_offset import (
     shared_offsets,
     walk_factors,
 )
-from geofix.filters.likelihood import TerrainLikelihood, check_field_variance, node_field_variance
+from geofix.filters.likelihood import (
+    TerrainLikelihood,
+    check_field_variance,
+    check_student_dof,
+    node_field_variance,
+)
 from geofix.filters.motion import (
     ErrorStateTrack,
     InsErrorState,
@@ -290,6 +295,13 @@ class Pmf(RecursiveFilter):
         ``shared`` and then every rate's probability pooled with the posterior's
         (:data:`geofix.filters.hypothesis_offset.RATE_POOLING`), so that it cannot explain
         them by a fast map error the others do not see either.
+    student_dof : float or None
+        Degrees of freedom of a Student-t likelihood per ping (None, the default: the
+        Gaussian): the Gaussian of every ping's covariance with its variance scaled by
+        one inverse-gamma factor, so that a ping whose beams are all off together (a
+        spike, a wrong sound speed, a stretch of map in gross error) moves the
+        posterior by a bounded amount (:func:`geofix.measurement.student_t`). 4 is a
+        common choice; above about 30 it is the Gaussian.
 
     References
     ----------
@@ -332,8 +344,10 @@ class Pmf(RecursiveFilter):
     offset_walk: float | None = None
     offset_rates: str = "own"
     offset_per_hypothesis: bool | None = None
+    student_dof: float | None = None
 
     def __post_init__(self) -> None:
+        check_student_dof(self.name, self.student_dof)
         if self.fast_offset_walk is not None:
             walk_factors(self.fast_offset_walk)
         if self.slow_offset_walk is not None:
@@ -375,7 +389,8 @@ class Pmf(RecursiveFilter):
     @property
     def likelihood(self) -> TerrainLikelihood:
         """The terrain measurement model of these settings."""
-        return TerrainLikelihood(self.discretisation_noise, self.field_variance)
+        dof = np.inf if self.student_dof is None else float(self.student_dof)
+        return TerrainLikelihood(self.discretisation_noise, self.field_variance, dof)
 
     def memory_points(self) -> tuple[str, int]:
         """``("pmf", most nodes)`` the filter may hold (:mod:`geofix.filters.sizing`)."""
