@@ -94,16 +94,16 @@ def _singlebeam_state(spec: str):
 
 
 def test_mpf_pooling_keeps_each_copy_on_the_path_its_offset_was_learnt_on():
-    """With pooling or profile pings, mpf jitters its copies within their share.
+    """Pooling, by default on profile pings, mpf jitters its copies within their share.
 
     Each particle's offset is tagged with its index; a copy must stay within a few
     share widths of the particle it copies (the kernel move carries copies about half
-    the set's spread away). On single-beam pings every mpf jitters; unpooled, a set
-    whose last ping was a swath's takes the kernel move.
+    the set's spread away). Unset, the pool is 2 on profile pings and 0 on a swath's.
     """
     cases = (  # spec, the last ping a profile's, the copies near their paths
         ("mpf:offset_pool=2", True, True),
         ("mpf", True, True),
+        ("mpf:offset_pool=0", True, False),
         ("mpf:offset_pool=2", False, True),
         ("mpf", False, False),
     )

@@ -265,8 +265,8 @@ def test_the_simulator_prior_centres_the_set_on_the_drawn_bias(small_mission):
 def test_copies_that_carry_a_profiles_offsets_stay_on_their_paths(small_mission):
     # the kernel move shifts every copy by about h sigma of the set (hundreds of metres
     # here); a particle's own offset learnt from profile pings was learnt on its own
-    # path, so such a copy is only jittered within its share; a swath's offset its own
-    # ping tells, and the kernel move stays
+    # path, so by default such copies are pooled and jittered within their share; a
+    # swath's offset its own ping tells, and the kernel move stays
     from dataclasses import replace
 
     from geofix.filters.hypothesis_offset import HypothesisOffset

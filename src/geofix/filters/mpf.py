@@ -57,9 +57,10 @@ Systems 45(4):
     while the positions' Mardia kurtosis says the set is not near-Gaussian
     (:func:`near_gaussian`) the resampled positions are only jittered within their own
     share of the area (``spacing / sqrt(12)`` per axis, the linear means following),
-  and so are they where the particles carry offsets learnt along their paths from
-  profile pings (``map_model=imperfect``, a single-beam echosounder or a gravimeter):
-  the kernel move would carry a copy away from the path its offset was learnt on.
+  and so are they where the particles carry offsets learnt along their paths and pool
+  them (:meth:`Mpf.offset_pool_of`: by default on profile pings, a single-beam
+  echosounder or a gravimeter): the kernel move would carry a copy away from the path
+  its offset was learnt on.
 
 The INS error is (nearly) noise-free, so its states are in effect static parameters of
 each particle's path, and a particle filter on static parameters degenerates: once the
@@ -124,8 +125,11 @@ _L = slice(2, None)
 #: Floor of the position variance of one prediction, m^2 (keeps ``S_pp`` invertible).
 MIN_STEP_VAR = 1e-6
 #: Fewest beams of a ping that tells its own offset (a swath); fewer make a profile,
-#: whose offset the particles learn along their paths (:func:`_path_offsets`).
+#: whose offset the particles learn along their paths (:meth:`Mpf.offset_pool_of`).
 PROFILE_BEAMS = 3
+#: ``offset_pool`` of an ``mpf`` left unset, on profile pings (particle spacings; 0 on
+#: a swath's): :meth:`Mpf.offset_pool_of`.
+PROFILE_OFFSET_POOL = 2.0
 
 PRIORS = ("moments", "simulator")
 """Priors of the start position error :class:`Mpf` can hold (its ``prior`` setting)."""
@@ -233,6 +237,11 @@ class Mpf(ParticleSettings):
         the default) or ``simulator`` (the very distribution the simulator draws it from,
         ``N(initial_offset, initial_std^2)`` per axis: a filter told the INS's bias, to
         measure against a bound that holds for any estimator on the trials).
+    offset_pool : float or None
+        As :class:`~geofix.filters.pf.ParticleSettings`'s, pooling and jittering the
+        copies within their share instead of the kernel move; None (the default):
+        :data:`PROFILE_OFFSET_POOL` on profile pings and 0 on a swath's
+        (:meth:`offset_pool_of`).
     """
 
     name: ClassVar[str] = "mpf"
@@ -243,6 +252,7 @@ class Mpf(ParticleSettings):
     use_dvl: bool = True
     position_walk_cells: float = 2e-4
     prior: str = "moments"
+    offset_pool: float | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -252,6 +262,23 @@ class Mpf(ParticleSettings):
             raise ConfigError(
                 f"mpf: position_walk_cells must be finite and >= 0, got {self.position_walk_cells}"
             )
+
+    def offset_pool_of(self, state: MpfState) -> float:
+        """The ``offset_pool`` the set is resampled with, particle spacings.
+
+        The setting when given. Unset: :data:`PROFILE_OFFSET_POOL` where the last ping
+        was a profile's (:attr:`MpfState.profile`), whose offset the particles learn
+        along their paths, and 0 on a swath's, which tells its own. Unpooled on
+        profiles, the kernel move carried copies away from their paths' offsets and a
+        gravimeter's filter over a 3 km prior ended one trial in sixteen 18.6 km off
+        (RESULTS, *Fused fields*, gravity alone); jittered but unpooled, the filter
+        claimed ``converged`` beyond 3 sigma on 138 of 2542 pings of the real ship tracks
+        against ETOPO1, pooled on none. Pooled on a swath's pings, the jitter lost five
+        trials of eight on the identical multibeam map of *Imperfect maps*.
+        """
+        if self.offset_pool is not None:
+            return float(self.offset_pool)
+        return PROFILE_OFFSET_POOL if state.profile else 0.0
 
     # ------------------------------------------------------------------ protocol
     def initialize(self, problem: MatchProblem, rng: np.random.Generator) -> MpfState:
@@ -315,7 +342,8 @@ class Mpf(ParticleSettings):
         """
         if effective_sample_size(state.weights) < self.resample_threshold * state.dp.shape[0]:
             state = self._resample(state, rng)
-            state = pooled_offsets_of(state, state.positions, self.offset_pool * state.spacing)
+            width = self.offset_pool_of(state) * state.spacing
+            state = pooled_offsets_of(state, state.positions, width)
         if state.offset is not None:
             state = replace(state, offset=state.offset.predicted(motion.dt))
         if state.field_offsets:
@@ -511,8 +539,8 @@ class Mpf(ParticleSettings):
         joint = joint[index]
         linear_cov = state.cov
         spacing = float(np.sqrt(area / count))
-        on_paths = _path_offsets(state) and (self.offset_pool > 0 or state.profile)
-        if self.regularise and (on_paths or not near_gaussian(state.dp, w)):
+        pooled_paths = self.offset_pool_of(state) > 0 and _path_offsets(state)
+        if self.regularise and (pooled_paths or not near_gaussian(state.dp, w)):
             joint = _roughen(joint, cov, spacing, rng)
         elif self.regularise:
             joint, linear_cov = self._move(joint, mean, cov, linear_cov, rng)
@@ -534,14 +562,7 @@ def _path_offsets(state: MpfState) -> bool:
     """The particles carry offsets learnt along their own paths.
 
     The kernel move would carry a copy about half the set's spread from the path its
-    offset was learnt on; jitter within the share keeps it there. It does so where the
-    offsets are pooled (``offset_pool``) and wherever the pings are profiles
-    (:attr:`MpfState.profile`), whose offset only the path's sequence of readings
-    tells: with the kernel move a gravimeter's filter over a 3 km prior ended one trial
-    in sixteen 18.6 km off (RESULTS, *Fused fields*, gravity alone), jittered 71 m. A
-    swath's offset its own ping tells, and there the kernel move stays: jittered, the
-    filter lost five trials of eight on the identical multibeam map of *Imperfect maps*
-    (104 m, median NEES 1e4, against 1.3 m).
+    offset was learnt on; jitter within the share keeps it there.
     """
     return state.offset is not None or any(o is not None for o in state.field_offsets)
 

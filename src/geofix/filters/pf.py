@@ -225,8 +225,9 @@ class ParticleSettings(RecursiveFilter):
         with its neighbours' (weighted by a tent kernel, :func:`~geofix.filters.
         hypothesis_offset.pooled_offsets`), as the point-mass convolution mixes its
         nodes'; ``mpf`` then jitters its copies within their share instead of the kernel
-        move (as it does on profile pings whatever the pool). 0 leaves each particle its
-        own path's offset (``mpf``'s default; ``pf``'s is 2, see :class:`Pf`). A map error
+        move. 0 leaves each particle its own path's offset (``pf``'s default is 2, see
+        :class:`Pf`; ``mpf``'s 2 on profile pings and 0 on a swath's,
+        :meth:`geofix.filters.mpf.Mpf.offset_pool_of`). A map error
         correlated over more than a swath reads, along one path, as an offset that
         follows a misleading stretch of map; pooled, the neighbours' paths temper it.
     offset_per_hypothesis : bool or None
@@ -267,7 +268,8 @@ class ParticleSettings(RecursiveFilter):
 
     def __post_init__(self) -> None:
         check_student_dof(self.name, self.student_dof)
-        if not (np.isfinite(self.offset_pool) and self.offset_pool >= 0):
+        pool = self.offset_pool
+        if pool is not None and not (np.isfinite(pool) and pool >= 0):
             raise ConfigError(f"{self.name}: offset_pool must be finite and >= 0")
         if self.fast_offset_walk is not None:
             walk_factors(self.fast_offset_walk)
