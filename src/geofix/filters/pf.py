@@ -219,15 +219,15 @@ class ParticleSettings(RecursiveFilter):
         The common offset's walk, map units squared per second, as
         :class:`geofix.filters.pmf.Pmf`'s: 0 an offset that does not move, None (the
         default) the navigator's ``depth_bias_walk`` (1e-3).
-    offset_pool : float
+    offset_pool : float or None
         Width, in particle spacings (the typical distance between neighbours after a
         resampling), over which each resampled particle's per-path offset is averaged
         with its neighbours' (weighted by a tent kernel, :func:`~geofix.filters.
         hypothesis_offset.pooled_offsets`), as the point-mass convolution mixes its
         nodes'; ``mpf`` then jitters its copies within their share instead of the kernel
-        move. 0 leaves each particle its own path's offset (``pf``'s default is 2, see
-        :class:`Pf`; ``mpf``'s 2 on profile pings and 0 on a swath's,
-        :meth:`geofix.filters.mpf.Mpf.offset_pool_of`). A map error
+        move. 0 (or None) leaves each particle its own path's offset (``pf``'s default
+        is 2, see :class:`Pf`; ``mpf``'s, None, is 2 on profile pings and 0 on a
+        swath's, :meth:`geofix.filters.mpf.Mpf.offset_pool_of`). A map error
         correlated over more than a swath reads, along one path, as an offset that
         follows a misleading stretch of map; pooled, the neighbours' paths temper it.
     offset_per_hypothesis : bool or None
@@ -261,7 +261,7 @@ class ParticleSettings(RecursiveFilter):
     fast_offset_walk: float | None = None
     slow_offset_walk: float | None = None
     offset_walk: float | None = None
-    offset_pool: float = 0.0
+    offset_pool: float | None = 0.0
     offset_rates: str = "own"
     offset_per_hypothesis: bool | None = None
     student_dof: float | None = None
@@ -495,7 +495,8 @@ class Pf(ParticleSettings):
         count = state.particles.shape[0]
         if effective_sample_size(state.weights) < self.resample_threshold * count:
             state = self._resample(state, rng)
-            state = pooled_offsets_of(state, _points(state), self.offset_pool * state.spacing)
+            width = float(self.offset_pool or 0.0) * state.spacing
+            state = pooled_offsets_of(state, _points(state), width)
         if state.offset is not None:
             state = replace(state, offset=state.offset.predicted(motion.dt))
         if state.field_offsets:
