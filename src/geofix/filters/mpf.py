@@ -57,10 +57,10 @@ Systems 45(4):
     while the positions' Mardia kurtosis says the set is not near-Gaussian
     (:func:`near_gaussian`) the resampled positions are only jittered within their own
     share of the area (``spacing / sqrt(12)`` per axis, the linear means following),
-  and so are they where the particles carry offsets learnt along their paths and pool
-  them (:meth:`Mpf.offset_pool_of`: by default on profile pings, a single-beam
-  echosounder or a gravimeter): the kernel move would carry a copy away from the path
-  its offset was learnt on.
+    and so are they where the particles carry offsets learnt along their paths and pool
+    them (:meth:`Mpf.offset_pool_of`: by default on profile pings, a single-beam
+    echosounder or a gravimeter): the kernel move would carry a copy away from the path
+    its offset was learnt on.
 
 The INS error is (nearly) noise-free, so its states are in effect static parameters of
 each particle's path, and a particle filter on static parameters degenerates: once the
@@ -273,8 +273,9 @@ class Mpf(ParticleSettings):
         gravimeter's filter over a 3 km prior ended one trial in sixteen 18.6 km off
         (RESULTS, *Fused fields*, gravity alone); jittered but unpooled, the filter
         claimed ``converged`` beyond 3 sigma on 138 of 2542 pings of the real ship tracks
-        against ETOPO1, pooled on none. Pooled on a swath's pings, the jitter lost five
-        trials of eight on the identical multibeam map of *Imperfect maps*.
+        against ETOPO1, pooled on none. Jittered on a swath's pings, the filter lost
+        five trials of eight on the identical multibeam map of *Imperfect maps* (the
+        kernel move is what keeps a collapsing swath set's linear states spread).
         """
         if self.offset_pool is not None:
             return float(self.offset_pool)
