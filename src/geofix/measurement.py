@@ -957,7 +957,7 @@ def common_bias_log_likelihood(
     s = w.sum(axis=-1)
     t = (r * w).sum(axis=-1)
     quad = (r * r * w).sum(axis=-1) - bias_var * t * t / (1.0 + bias_var * s)
-    if np.isinf(dof):
+    if np.isinf(dof):  # the Gaussian's own expression: its numbers to the last bit
         ll = -0.5 * quad - 0.5 * np.log1p(bias_var * s)
     else:
         ll = student_t(quad, np.log1p(bias_var * s), valid.sum(axis=-1), dof)
