@@ -99,6 +99,61 @@ def gravity_dvl_mission_data(name: str, **changes) -> dict:
     return data
 
 
+def gravity_map_error_mission(name: str, seabed: dict, seed: int):
+    """The ``imperfect_gravity`` benchmark's mission, held in: 110 readings 200 m apart,
+    DVL-aided, 500 m initial spread, on a prior map that differs from the field read by
+    ``seabed``; ``(scenario, prepared map)``, 12 trials.
+    """
+    from geofix.sim.scenario import scenario_from_dict
+    from geofix.sim.simulate import prepare_map
+
+    data = gravity_dvl_mission_data(
+        name,
+        track={
+            "start_cell": [250, 1120],
+            "heading_deg": 70,
+            "speed_m_s": 10,
+            "interval_s": 20,
+            "samples": 110,
+            "legs": 1,
+            "start_jitter_m": 50,
+        },
+        ins={
+            "mode": "dvl",
+            "initial_error_m": [0, 0],
+            "initial_error_std_m": 500,
+            "heading_error_deg": 0.05,
+            "gyro_bias_deg_h": 0.01,
+        },
+        dvl={"noise_std_m_s": 0.01, "bias_m_s": 0.005, "scale_error": 0.002},
+        seabed=seabed,
+        trials=12,
+        seed=seed,
+    )
+    scen = scenario_from_dict(data)
+    return scen, prepare_map(scen)
+
+
+def trial_ends(scen, grid, spec: str, indices) -> list[tuple[float, float]]:
+    """``(end error m, end NEES)`` of method ``spec`` on each trial of ``indices``.
+
+    Every spec runs on the random stream of ``pmf`` at each trial, so two specs differ
+    by their settings alone.
+    """
+    from geofix.evaluate.runner import method_rng, run_trial
+    from geofix.methods import parse_method_spec
+    from geofix.sim.simulate import simulate_trial
+
+    out = []
+    for index in indices:
+        trial = simulate_trial(scen, grid, index)
+        rng = method_rng(scen.seed, index, "pmf")
+        result = run_trial(parse_method_spec(spec), trial, grid, rng)
+        e = result.estimate[-1] - trial.truth[-1]
+        out.append((float(np.hypot(*e)), float(e @ np.linalg.solve(result.covariance, e))))
+    return out
+
+
 @pytest.fixture
 def small_mission():
     """Factory of :func:`small_mission_data` scenarios (validated)."""

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from conftest import gravity_dvl_mission_data, small_mission_data
+from conftest import gravity_map_error_mission, small_mission_data, trial_ends
 from geofix.errors import ConfigError
 from geofix.filters.base import Observation
 from geofix.filters.hypothesis_offset import (
@@ -248,34 +248,9 @@ def test_the_rates_are_carried_through_the_moves_and_summarised():
 
 def _gravity_correlated_mission():
     """A held-in copy of the ``imperfect_gravity`` benchmark with a 2 mGal, 3 km map error."""
-    from geofix.sim.scenario import scenario_from_dict
-    from geofix.sim.simulate import prepare_map
-
-    data = gravity_dvl_mission_data(
-        "gravity-correlated-map-error",
-        track={
-            "start_cell": [250, 1120],
-            "heading_deg": 70,
-            "speed_m_s": 10,
-            "interval_s": 20,
-            "samples": 110,
-            "legs": 1,
-            "start_jitter_m": 50,
-        },
-        ins={
-            "mode": "dvl",
-            "initial_error_m": [0, 0],
-            "initial_error_std_m": 500,
-            "heading_error_deg": 0.05,
-            "gyro_bias_deg_h": 0.01,
-        },
-        dvl={"noise_std_m_s": 0.01, "bias_m_s": 0.005, "scale_error": 0.002},
-        seabed={"error_rms": 2.0, "error_corr_m": 3000.0},
-        trials=12,
-        seed=11,
+    return gravity_map_error_mission(
+        "gravity-correlated-map-error", {"error_rms": 2.0, "error_corr_m": 3000.0}, 11
     )
-    scen = scenario_from_dict(data)
-    return scen, prepare_map(scen)
 
 
 def test_a_map_error_over_kilometres_is_followed_as_a_faster_offset():
@@ -286,19 +261,10 @@ def test_a_map_error_over_kilometres_is_followed_as_a_faster_offset():
     claiming a few hundred metres (NEES 196 and 2333); weighing a rate ten times faster
     too (a gravity map's default), it ends 305 and 161 m off (NEES 1.0 and 0.2).
     """
-    from geofix.evaluate.runner import method_rng, run_trial
-    from geofix.sim.simulate import simulate_trial
-
     scen, grid = _gravity_correlated_mission()
 
     def ends(spec):
-        out = []
-        for index in (4, 5):
-            trial = simulate_trial(scen, grid, index)
-            result = run_trial(parse_method_spec(spec), trial, grid, method_rng(11, index, "pmf"))
-            e = result.estimate[-1] - trial.truth[-1]
-            out.append((float(np.hypot(*e)), float(e @ np.linalg.solve(result.covariance, e))))
-        return out
+        return trial_ends(scen, grid, spec, (4, 5))
 
     for error, nees in ends("pmf"):
         assert error < 400.0 and nees < 5.0, (error, nees)

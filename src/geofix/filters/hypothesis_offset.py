@@ -27,6 +27,14 @@ likelihood is the mixture over the rates (:meth:`HypothesisOffset.marginal`), th
 Bayesian answer for a rate that is one of them and fixed along a hypothesis's path, with
 :data:`WALK_RETURN` of the prior given back each ping so that a rate set aside can return.
 
+A map error correlated over kilometres is smooth along the track, and a walk (whose steps
+are independent) reads its slow wander as a level that stays: a filter given a length
+(``offset_smooth_m``) weighs beside its walks a smooth offset, a Matern-3/2 process along
+the distance travelled of that length scale whose stationary variance is the offset's
+prior, carried per hypothesis as a level and its rate of change per metre
+(:func:`matern_transition`); its likelihood and update are the level's, the rate
+following through their covariance.
+
 The hypotheses are moved, resampled, convolved and regridded by their filter; these
 values follow them (:meth:`HypothesisOffset.take`, :meth:`HypothesisOffset.mixed`,
 :meth:`HypothesisOffset.regridded`).
@@ -42,7 +50,7 @@ from scipy.special import logsumexp
 
 from geofix.errors import ConfigError
 from geofix.filters._grid_ops import node_positions
-from geofix.filters.base import Observation
+from geofix.filters.base import Motion, Observation
 from geofix.filters.offset_sums import ResidualSums
 from geofix.maps.grid import Grid
 from geofix.measurement import predict_measurements
@@ -144,6 +152,53 @@ def check_offset_per_hypothesis(method: str, value) -> None:
         )
 
 
+def check_offset_smooth(method: str, value) -> None:
+    """Refuse an ``offset_smooth_m`` setting that is not None or a finite length >= 0.
+
+    Parameters
+    ----------
+    method : str
+        The method's name, for the message.
+    value : object
+        The setting, metres.
+    """
+    if value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{method}: offset_smooth_m must be a length in metres, got {value!r}")
+    if not (np.isfinite(value) and value >= 0):
+        raise ConfigError(f"{method}: offset_smooth_m must be finite and >= 0, got {value}")
+
+
+def matern_transition(scale: float, variance: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """A Matern-3/2 offset's transition and process noise over a step ``dt``.
+
+    The state is the offset and its rate of change, ``x = (b, db/ds)``; the process is
+    stationary with ``b`` of variance ``variance`` and correlation ``(1 + a) exp(-a)``,
+    ``a = sqrt(3) |dt| / scale``. ``s`` is the distance travelled (metres) for a map
+    error; the same in seconds would serve an offset that varies in time.
+
+    Parameters
+    ----------
+    scale : float
+        Length scale, in the unit of ``dt`` (> 0).
+    variance : float
+        Stationary variance of the offset, map units squared.
+    dt : float
+        Step, metres travelled (>= 0).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(F (2, 2), Q (2, 2))``: ``x <- F x``, ``P <- F P F' + Q``.
+    """
+    lam = np.sqrt(3.0) / scale
+    decay = np.exp(-lam * dt)
+    f = decay * np.array([[1.0 + lam * dt, dt], [-lam * lam * dt, 1.0 - lam * dt]])
+    still = np.diag([variance, lam * lam * variance])
+    return f, still - f @ still @ f.T
+
+
 #: Share of each walk's prior probability a hypothesis gets back at every ping, so that a
 #: walk it set aside can return where the map's error changes its character.
 WALK_RETURN = 0.01
@@ -182,6 +237,18 @@ class HypothesisOffset:
         ``pooled``: :meth:`shared`).
     pooling : float
         With ``offset_rates=pooled``, :data:`RATE_POOLING`; 0 otherwise.
+    scales : numpy.ndarray or None
+        ``(K,)`` each model's Matern-3/2 length scale along the track, metres (0: a
+        walk), or None when every model walks. A smooth model's walk is 0 and its
+        stationary variance :attr:`smooth_variance`.
+    slopes : numpy.ndarray or None
+        ``(K, ...)`` each hypothesis's rate of change of the offset under each model, map
+        units per metre travelled (0 under a walk), with ``scales``.
+    slope_cov : numpy.ndarray or None
+        ``(K, 2)`` the covariance of level and rate and the rate's variance under each
+        model (0 under a walk), with ``scales``.
+    smooth_variance : float
+        The smooth models' stationary variance, map units squared.
     """
 
     means: np.ndarray
@@ -191,6 +258,10 @@ class HypothesisOffset:
     stationary: float = float("inf")
     shared_steady: bool = False
     pooling: float = 0.0
+    scales: np.ndarray | None = None
+    slopes: np.ndarray | None = None
+    slope_cov: np.ndarray | None = None
+    smooth_variance: float = 0.0
 
     @classmethod
     def single(cls, mean, var: float, walk: float) -> HypothesisOffset:
@@ -208,6 +279,7 @@ class HypothesisOffset:
         fast: float | None = None,
         rates: str = "own",
         slow: float | None = None,
+        smooth: float = 0.0,
     ) -> HypothesisOffset | None:
         """The prior ``N(0, obs.bias_var)`` for every hypothesis, or None without one.
 
@@ -237,6 +309,11 @@ class HypothesisOffset:
             as a factor on ``bias_walk`` below 1 (the filter's ``slow_offset_walk``;
             :func:`walk_factors`); None: :data:`SLOW_OFFSET_WALK`; 0: none. The rates are
             equally likely a priori.
+        smooth : float
+            A smooth offset's length scale along the track, metres (the filter's
+            ``offset_smooth_m``; 0: none): a Matern-3/2 process of stationary variance
+            ``bias_var`` weighed beside the walks, as likely a priori as each
+            (:meth:`with_smooth`).
         """
         if not (obs.bias_per_hypothesis and obs.bias_var > 0):
             return None
@@ -251,7 +328,7 @@ class HypothesisOffset:
         if steady:
             factors, k = np.concatenate([[0.0], factors]), k + 1
         log_prior = np.full((k, *([1] * len(shape))), -np.log(k))
-        return cls(
+        walks = cls(
             np.zeros((k, *shape)),
             np.full(k, float(obs.bias_var)),
             walk * factors,
@@ -259,6 +336,41 @@ class HypothesisOffset:
             float(obs.bias_var) if k > 1 else float("inf"),
             steady,
             RATE_POOLING if steady and rates == "pooled" else 0.0,
+        )
+        return walks.with_smooth(smooth, float(obs.bias_var)) if smooth > 0 else walks
+
+    def with_smooth(self, scale: float, variance: float) -> HypothesisOffset:
+        """These models and a smooth one (Matern-3/2, ``scale`` metres), at its prior.
+
+        The smooth model starts at its stationary law (offset ``N(0, variance)``, rate
+        per metre ``N(0, 3 variance / scale^2)``) and takes an equal share of the prior: every
+        model's probability is scaled by ``K / (K + 1)``. It is weighed last, after the
+        fastest walk; :meth:`shared` refuses it (``offset_rates`` ``own`` only).
+
+        Parameters
+        ----------
+        scale : float
+            Length scale along the track, metres (> 0).
+        variance : float
+            Stationary variance of the offset, map units squared.
+        """
+        k = self.models
+        shape = self.means.shape[1:]
+        zeros = np.zeros((1, *shape))
+        log_prob = np.concatenate([self.log_prob + np.log(k / (k + 1.0)), zeros - np.log(k + 1.0)])
+        scales = np.zeros(k) if self.scales is None else self.scales
+        slopes = np.zeros_like(self.means) if self.slopes is None else self.slopes
+        slope_cov = np.zeros((k, 2)) if self.slope_cov is None else self.slope_cov
+        return replace(
+            self,
+            means=np.concatenate([self.means, zeros]),
+            variances=np.append(self.variances, variance),
+            walks=np.append(self.walks, 0.0),
+            log_prob=log_prob,
+            scales=np.append(scales, float(scale)),
+            slopes=np.concatenate([slopes, zeros]),
+            slope_cov=np.vstack([slope_cov, [0.0, 3.0 * variance / scale**2]]),
+            smooth_variance=float(variance),
         )
 
     @property
@@ -271,27 +383,61 @@ class HypothesisOffset:
         """Each hypothesis's offset mean over its rates, map units."""
         return np.sum(np.exp(self.log_prob) * self.means, axis=0)
 
-    def predicted(self, dt: float) -> HypothesisOffset:
-        """The offsets ``dt`` seconds later.
+    def after(self, motion: Motion) -> HypothesisOffset:
+        """The offsets after an INS step (:meth:`predicted`).
+
+        The walks move over its duration, a smooth offset over its length.
+        """
+        return self.predicted(motion.dt, float(np.hypot(*motion.displacement)))
+
+    def predicted(self, dt: float, travelled: float = 0.0) -> HypothesisOffset:
+        """The offsets ``dt`` seconds and ``travelled`` metres later.
 
         A random walk's variance grows by ``walk * dt``. With a finite
         :attr:`stationary` variance ``s`` each rate decays towards zero with the time
         constant ``2 s / walk``: ``b <- a b``, ``P <- a^2 P + s (1 - a^2)``, ``a = exp(-dt
-        walk / (2 s))``.
+        walk / (2 s))``. A smooth model moves over the distance ``travelled``
+        (:func:`matern_transition`).
         """
         dt = max(float(dt), 0.0)
         if not np.isfinite(self.stationary):
-            return replace(self, variances=self.variances + self.walks * dt)
-        a = np.exp(-dt * self.walks / (2.0 * self.stationary))
-        return replace(
-            self,
-            means=self.means * a.reshape(-1, *([1] * (self.means.ndim - 1))),
-            variances=a * a * self.variances + self.stationary * (1.0 - a * a),
-        )
+            walked = replace(self, variances=self.variances + self.walks * dt)
+        else:
+            a = np.exp(-dt * self.walks / (2.0 * self.stationary))
+            walked = replace(
+                self,
+                means=self.means * a.reshape(-1, *([1] * (self.means.ndim - 1))),
+                variances=a * a * self.variances + self.stationary * (1.0 - a * a),
+            )
+        if self.scales is None:
+            return walked
+        return walked._smoothed(self, max(float(travelled), 0.0))
+
+    def _smoothed(self, before: HypothesisOffset, dt: float) -> HypothesisOffset:
+        """These offsets with each smooth model's moved from ``before`` over ``dt`` m."""
+        scales, rates, rate_cov = before.scales, before.slopes, before.slope_cov
+        if scales is None or rates is None or rate_cov is None:
+            return self
+        means, variances = self.means.copy(), self.variances.copy()
+        slopes, slope_cov = rates.copy(), rate_cov.copy()
+        for k in np.flatnonzero(scales > 0):
+            f, q = matern_transition(float(scales[k]), before.smooth_variance, dt)
+            b, r = before.means[k], rates[k]
+            means[k] = f[0, 0] * b + f[0, 1] * r
+            slopes[k] = f[1, 0] * b + f[1, 1] * r
+            cross, rate_var = rate_cov[k]
+            cov = np.array([[before.variances[k], cross], [cross, rate_var]])
+            cov = f @ cov @ f.T + q
+            variances[k] = cov[0, 0]
+            slope_cov[k] = cov[0, 1], cov[1, 1]
+        return replace(self, means=means, variances=variances, slopes=slopes, slope_cov=slope_cov)
 
     def take(self, index) -> HypothesisOffset:
         """The offsets of the hypotheses ``index`` (a resample's copies)."""
-        return replace(self, means=self.means[:, index], log_prob=self.log_prob[:, index])
+        slopes = None if self.slopes is None else self.slopes[:, index]
+        return replace(
+            self, means=self.means[:, index], log_prob=self.log_prob[:, index], slopes=slopes
+        )
 
     def marginal(self, log_likelihood) -> np.ndarray:
         """A ping's log-likelihood of each hypothesis, marginalised over its rates.
@@ -383,12 +529,20 @@ class HypothesisOffset:
             ll = -0.5 * (square - p * t * t / gain) - 0.5 * np.log(gain)
             log_prob = _returned(log_prob + ll, self._log_prior())
         shape = self.means.shape
-        return replace(
+        updated = replace(
             self,
             means=means.reshape(shape),
             variances=self.variances / (1.0 + self.variances * most),
             log_prob=log_prob.reshape(shape),
         )
+        if self.slope_cov is None or self.slopes is None:
+            return updated
+        # the rate follows the level through their covariance: gain c / (1 + P S)
+        cross, rate_var = self.slope_cov[:, 0], self.slope_cov[:, 1]
+        slopes = self.slopes.reshape(self.models, count) + cross[:, None] * t / gain
+        shrink = 1.0 + self.variances * most
+        slope_cov = np.column_stack([cross / shrink, rate_var - cross * cross * most / shrink])
+        return replace(updated, slopes=slopes.reshape(shape), slope_cov=slope_cov)
 
     def shared(self, log_weight) -> HypothesisOffset:
         """The steady rates' split made once, by the posterior over every hypothesis.
@@ -415,6 +569,8 @@ class HypothesisOffset:
         """
         if not self.shared_steady:
             return self
+        if self.scales is not None:
+            raise ConfigError("a smooth offset is weighed with offset_rates=own only")
         lp = self.log_prob.reshape(self.models, -1)
         weight = np.asarray(log_weight, dtype=float).reshape(-1)
         steady = logsumexp(lp[:-1], axis=0)
@@ -442,8 +598,16 @@ class HypothesisOffset:
             for lp, b in zip(self.log_prob, self.means, strict=True)
         ]
         means = np.stack([mean for mean, _ in moved])
+        slopes = self.slopes
+        if slopes is not None:
+            slopes = np.stack(
+                [
+                    _arrived(log_weight + lp, r, kernels)[0]
+                    for lp, r in zip(self.log_prob, slopes, strict=True)
+                ]
+            )
         if self.models == 1:
-            return replace(self, means=means)
+            return replace(self, means=means, slopes=slopes)
         # each rate's arrived mass on the scale of the nodes' own peak mass
         peak = np.max(log_weight)
         arrived = np.stack([mass * np.exp(top - peak) for _, (mass, top) in moved])
@@ -452,30 +616,41 @@ class HypothesisOffset:
         log_prob = np.where(
             ok, np.log(np.maximum(arrived, 1e-300) / np.where(ok, total, 1.0)), self.log_prob
         )
-        return replace(self, means=means, log_prob=log_prob - logsumexp(log_prob, axis=0))
+        return replace(
+            self, means=means, log_prob=log_prob - logsumexp(log_prob, axis=0), slopes=slopes
+        )
 
     def pooled(self, points, log_weight, width: float) -> HypothesisOffset:
         """Particle offsets averaged with their neighbours' (:func:`pooled_offsets`)."""
         if not width > 0:
             return self
+        lp = self.log_prob.reshape(self.models, -1)
         means, log_prob = pooled_offsets(
-            points,
-            log_weight,
-            self.means.reshape(self.models, -1),
-            self.log_prob.reshape(self.models, -1),
-            width,
+            points, log_weight, self.means.reshape(self.models, -1), lp, width
         )
+        slopes = self.slopes
+        if slopes is not None:
+            flat = slopes.reshape(self.models, -1)
+            slopes = pooled_offsets(points, log_weight, flat, lp, width)[0].reshape(slopes.shape)
         return replace(
-            self, means=means.reshape(self.means.shape), log_prob=log_prob.reshape(self.means.shape)
+            self,
+            means=means.reshape(self.means.shape),
+            log_prob=log_prob.reshape(self.means.shape),
+            slopes=slopes,
         )
 
     def regridded(self, old, new, shape) -> HypothesisOffset:
         """The node offsets moved from grid ``old`` onto ``new`` (:func:`regridded_offsets`)."""
         means = np.stack([regridded_offsets(b, old, new, shape) for b in self.means])
+        slopes = self.slopes
+        if slopes is not None:
+            slopes = np.stack([regridded_offsets(r, old, new, shape) for r in slopes])
         if self.models == 1:
-            return replace(self, means=means, log_prob=np.zeros_like(means))
+            return replace(self, means=means, log_prob=np.zeros_like(means), slopes=slopes)
         log_prob = np.stack([regridded_offsets(lp, old, new, shape) for lp in self.log_prob])
-        return replace(self, means=means, log_prob=log_prob - logsumexp(log_prob, axis=0))
+        return replace(
+            self, means=means, log_prob=log_prob - logsumexp(log_prob, axis=0), slopes=slopes
+        )
 
 
 def shared_offsets(state):
@@ -607,7 +782,9 @@ __all__ = [
     "WALK_RETURN",
     "HypothesisOffset",
     "check_offset_rates",
+    "check_offset_smooth",
     "check_offset_walk",
+    "matern_transition",
     "mixed_offsets",
     "regridded_offsets",
     "shared_offsets",

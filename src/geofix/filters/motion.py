@@ -146,7 +146,7 @@ class RandomWalk:
         def mixed(offset):
             if offset is None:
                 return None
-            return offset.mixed(state.log_weight, kernels).predicted(motion.dt)
+            return offset.mixed(state.log_weight, kernels).after(motion)
 
         return replace(
             state,
@@ -312,7 +312,7 @@ class InsErrorState:
             if offset is None:
                 return None
             moved = offset.regridded(state.frame, pulled, shape)
-            return moved.mixed(log_weight, kernels).predicted(motion.dt)
+            return moved.mixed(log_weight, kernels).after(motion)
 
         return replace(
             state,

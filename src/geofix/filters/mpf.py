@@ -346,11 +346,9 @@ class Mpf(ParticleSettings):
             width = self.offset_pool_of(state) * state.spacing
             state = pooled_offsets_of(state, state.positions, width)
         if state.offset is not None:
-            state = replace(state, offset=state.offset.predicted(motion.dt))
+            state = replace(state, offset=state.offset.after(motion))
         if state.field_offsets:
-            moved = tuple(
-                None if o is None else o.predicted(motion.dt) for o in state.field_offsets
-            )
+            moved = tuple(None if o is None else o.after(motion) for o in state.field_offsets)
             state = replace(state, field_offsets=moved)
         k = state.step
         model, f, q = step_matrices(

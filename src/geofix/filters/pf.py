@@ -73,6 +73,7 @@ from geofix.filters.hypothesis_offset import (
     HypothesisOffset,
     check_offset_per_hypothesis,
     check_offset_rates,
+    check_offset_smooth,
     check_offset_walk,
     shared_offsets,
     walk_factors,
@@ -241,6 +242,9 @@ class ParticleSettings(RecursiveFilter):
     student_dof : float or None
         As :class:`geofix.filters.pmf.Pmf`'s: a Student-t likelihood per ping of that
         many degrees of freedom (None, the default: the Gaussian).
+    offset_smooth_m : float or None
+        As :class:`geofix.filters.pmf.Pmf`'s: a smooth offset of that length scale
+        along the track, metres, weighed beside the walks (None or 0, the default: none).
     """
 
     name: ClassVar[str] = "particles"
@@ -265,6 +269,7 @@ class ParticleSettings(RecursiveFilter):
     offset_rates: str = "own"
     offset_per_hypothesis: bool | None = None
     student_dof: float | None = None
+    offset_smooth_m: float | None = None
 
     def __post_init__(self) -> None:
         check_student_dof(self.name, self.student_dof)
@@ -277,6 +282,9 @@ class ParticleSettings(RecursiveFilter):
             walk_factors(0.0, self.slow_offset_walk)
         check_offset_walk(self.name, self.offset_walk)
         check_offset_rates(self.name, self.offset_rates)
+        check_offset_smooth(self.name, self.offset_smooth_m)
+        if self.offset_smooth_m and self.offset_rates != "own":
+            raise ConfigError(f"{self.name}: offset_smooth_m needs offset_rates=own")
         check_offset_per_hypothesis(self.name, self.offset_per_hypothesis)
         name = self.name
         if self.particles < 10 or self.max_particles < self.particles:
@@ -354,7 +362,12 @@ class ParticleSettings(RecursiveFilter):
     def started_offset(self, shape, obs: Observation) -> HypothesisOffset | None:
         """The particles' offsets at their first ping (:meth:`HypothesisOffset.start`)."""
         return HypothesisOffset.start(
-            shape, obs, self.fast_offset_walk, self.offset_rates, self.slow_offset_walk
+            shape,
+            obs,
+            self.fast_offset_walk,
+            self.offset_rates,
+            self.slow_offset_walk,
+            float(self.offset_smooth_m or 0.0),
         )
 
     def offset_moments(self, state, field: int | None = None) -> tuple[float, float] | None:
@@ -498,11 +511,9 @@ class Pf(ParticleSettings):
             width = float(self.offset_pool or 0.0) * state.spacing
             state = pooled_offsets_of(state, _points(state), width)
         if state.offset is not None:
-            state = replace(state, offset=state.offset.predicted(motion.dt))
+            state = replace(state, offset=state.offset.after(motion))
         if state.field_offsets:
-            moved = tuple(
-                None if o is None else o.predicted(motion.dt) for o in state.field_offsets
-            )
+            moved = tuple(None if o is None else o.after(motion) for o in state.field_offsets)
             state = replace(state, field_offsets=moved)
         if state.track is not None:
             particles, track = error_state_predict(

@@ -78,6 +78,7 @@ from geofix.filters.hypothesis_offset import (
     HypothesisOffset,
     check_offset_per_hypothesis,
     check_offset_rates,
+    check_offset_smooth,
     check_offset_walk,
     shared_offsets,
     walk_factors,
@@ -302,6 +303,14 @@ class Pmf(RecursiveFilter):
         spike, a wrong sound speed, a stretch of map in gross error) moves the
         posterior by a bounded amount (:func:`geofix.measurement.student_t`). 4 is a
         common choice; above about 30 it is the Gaussian.
+    offset_smooth_m : float or None
+        A smooth offset's length scale along the track, metres (None or 0, the default:
+        none): each node weighs beside its walks an offset that varies smoothly with the
+        distance travelled (a Matern-3/2 process of that length at the offset's prior
+        variance, carried as a level and its rate per metre;
+        :meth:`geofix.filters.hypothesis_offset.HypothesisOffset.with_smooth`), as a map
+        error correlated over kilometres reads along a track. With ``offset_rates=own``
+        only.
 
     References
     ----------
@@ -345,6 +354,7 @@ class Pmf(RecursiveFilter):
     offset_rates: str = "own"
     offset_per_hypothesis: bool | None = None
     student_dof: float | None = None
+    offset_smooth_m: float | None = None
 
     def __post_init__(self) -> None:
         check_student_dof(self.name, self.student_dof)
@@ -354,6 +364,9 @@ class Pmf(RecursiveFilter):
             walk_factors(0.0, self.slow_offset_walk)
         check_offset_walk(self.name, self.offset_walk)
         check_offset_rates(self.name, self.offset_rates)
+        check_offset_smooth(self.name, self.offset_smooth_m)
+        if self.offset_smooth_m and self.offset_rates != "own":
+            raise ConfigError(f"{self.name}: offset_smooth_m needs offset_rates=own")
         check_offset_per_hypothesis(self.name, self.offset_per_hypothesis)
         check_motion_model("pmf", self.model)
         if self.points < 5 or self.points % 2 == 0:
@@ -479,7 +492,12 @@ class Pmf(RecursiveFilter):
     def started_offset(self, shape, obs: Observation) -> HypothesisOffset | None:
         """The nodes' offsets at their first ping (:meth:`HypothesisOffset.start`)."""
         return HypothesisOffset.start(
-            shape, obs, self.fast_offset_walk, self.offset_rates, self.slow_offset_walk
+            shape,
+            obs,
+            self.fast_offset_walk,
+            self.offset_rates,
+            self.slow_offset_walk,
+            float(self.offset_smooth_m or 0.0),
         )
 
     def _update_fields(self, state: PmfState, obs: Observation, grid: Grid, fields) -> PmfState:
