@@ -143,7 +143,7 @@ def build(quick: bool) -> str:
             scen = _with_seabed(base, label, seabed)
             result = campaign(scen, list(methods), trials=trials, jobs=2)
             cell = float(base.map.resample_m) * (seabed or {}).get("cell_factor", 1)
-            bound, still, aware = _bound_m(scen, seabed, trials)
+            bound, still, aware, zzb = _bound_m(scen, seabed, trials)
             default_nees, still_nees = [], {}
             chosen = {}
             for spec in methods:
@@ -185,6 +185,7 @@ def build(quick: bool) -> str:
                     label,
                     f"{bound:.1f}",
                     f"{still:.1f}",
+                    "-" if zzb is None else f"{zzb:.1f}",
                     f"{aware:.1f}",
                     best[0],
                     _ratio(best[1], bound),
@@ -210,6 +211,7 @@ def build(quick: bool) -> str:
                     "prior map",
                     "known-offset bound (m)",
                     "imperfect-map bound (m)",
+                    "its Ziv-Zakai part (m)",
                     "offset-aware bound (m)",
                     "best default filter",
                     "its RMS / known-offset bound",
@@ -273,7 +275,7 @@ def _figure(base) -> str:
     )
 
 
-def _bound_m(scen, seabed: dict | None, trials: int) -> tuple[float, float, float]:
+def _bound_m(scen, seabed: dict | None, trials: int) -> tuple[float, float, float, float | None]:
     """RMS over the trials of the three imperfect-map bounds at the end point, metres.
 
     All three are error-state bounds on the prior map's information and differ in the
@@ -288,16 +290,23 @@ def _bound_m(scen, seabed: dict | None, trials: int) -> tuple[float, float, floa
     bound by the recursion of :func:`geofix.evaluate.crlb.offset_state_crlb` with no
     walk). The offset-aware bound has the offset a random walk at the filters' own walk
     with the map error white (the limit of the problem the default filters set
-    themselves).
+    themselves). On a gravity map (a few hundred readings) the imperfect-map bound of each
+    trial is the larger of that Cramér-Rao bound and the Ziv-Zakai bound of the same
+    problem (:func:`geofix.evaluate.zzb_correlated.correlated_map_zzb`), which sees the
+    far modes a smooth field and a map error of kilometres leave; the fourth value is
+    the RMS of the latter alone (None on a multibeam map, whose tens of thousands of
+    beams the joint covariance cannot hold).
     """
     from geofix.evaluate.crlb import imperfect_map_crlb, offset_state_crlb
     from geofix.evaluate.crlb_correlated import correlated_map_crlb
+    from geofix.evaluate.zzb_correlated import correlated_map_zzb
     from geofix.sim.simulate import prepare_map, simulate_trial
 
     rms = float((seabed or {}).get("error_rms", 0.0))
     corr = float((seabed or {}).get("error_corr_m", 0.0))
     grid = prepare_map(scen)
-    known, still, aware = [], [], []
+    known, still, aware, zzb = [], [], [], []
+    global_bound = scen.map.kind == "gravity"
     for index in range(trials):
         trial = simulate_trial(scen, grid, index)
         known.append(imperfect_map_crlb(trial, grid, offset_var=0.0).recursive_var_m2)
@@ -307,11 +316,14 @@ def _bound_m(scen, seabed: dict | None, trials: int) -> tuple[float, float, floa
             bound = offset_state_crlb(trial, grid, offset_walk=0.0, prior_map=True)
             still.append(bound.recursive_var_m2)
         aware.append(offset_state_crlb(trial, grid, prior_map=True).recursive_var_m2)
+        if global_bound:
+            zzb.append(correlated_map_zzb(trial, grid, rms, corr))
+            still[-1] = max(still[-1], zzb[-1])
 
     def rms_of(values: list[float]) -> float:
         return float(np.sqrt(np.mean(values)))
 
-    return rms_of(known), rms_of(still), rms_of(aware)
+    return rms_of(known), rms_of(still), rms_of(aware), rms_of(zzb) if zzb else None
 
 
 def _ratio(rms, bound: float, factor: float | None = None) -> str:
@@ -398,11 +410,17 @@ def _intro(trials: int) -> str:
         "learn); on the rows with a correlated map error it takes that error's covariance "
         "between every two readings of the mission, across the swath and along the track "
         "(`geofix.evaluate.crlb_correlated.correlated_map_crlb`: its rms and correlation "
-        "length known, the rest of the map's error white). The *offset-aware* bound has "
-        "the offset a random walk at the filters' declared walk (1e-3 units^2/s) and the "
-        "map error white (`geofix.evaluate.crlb.offset_state_crlb`): the limit of the "
-        "problem the default filters set "
-        "themselves. A map that states how "
+        "length known, the rest of the map's error white); on the gravity maps it is, "
+        "trial by trial, the larger of that Cramér-Rao bound and the Ziv-Zakai bound of "
+        "the same problem (`geofix.evaluate.zzb_correlated.correlated_map_zzb`: the "
+        "error probability of telling two start positions apart from the whole "
+        "mission's readings under that covariance), which sees the far modes a smooth "
+        "field and a map error of kilometres leave where the Cramér-Rao bound adds up "
+        "the gradients at the truth alone (its own RMS in the column beside). "
+        "The *offset-aware* bound has the offset a random walk at the filters' "
+        "declared walk (1e-3 units^2/s) and the map error white "
+        "(`geofix.evaluate.crlb.offset_state_crlb`): the limit of the problem the default "
+        "filters set themselves. A map that states how "
         "well it is registered (`registration_std_m`, `Grid.registration_var`) has every "
         "method add that variance to the covariance it reports (the estimate unchanged); "
         "the row whose map states its 20 m shows it. The `map_model=exact` rows model no "

@@ -60,7 +60,13 @@ from geofix.measurement import beam_gradients
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import footprint_xy
 
-__all__ = ["correlated_map_crlb", "state_covariances"]
+__all__ = [
+    "check_correlated_error",
+    "correlated_map_crlb",
+    "reading_covariance",
+    "state_covariances",
+    "trial_beams",
+]
 
 
 def correlated_map_crlb(
@@ -110,14 +116,10 @@ def correlated_map_crlb(
     MemoryBudgetError
         The readings' covariance would not fit the memory budget.
     """
-    if error_rms < 0 or error_corr_m < 0 or (error_rms > 0 and not error_corr_m > 0):
-        raise ValueError(
-            "error_rms must be >= 0 and error_corr_m > 0 with it, got "
-            f"{error_rms} and {error_corr_m}"
-        )
+    check_correlated_error(error_rms, error_corr_m)
     es = trial_error_state(trial)
     motion = random_walk_motion(trial.sigma_position) if es is None else error_state_motion(es)
-    beams = _trial_beams(trial, grid, float(error_rms), beam_var)
+    beams = trial_beams(trial, grid, float(error_rms), beam_var)
     std, _ = trial_offset_model(trial, grid, offset_std, 0.0)
     n = np.asarray(trial.truth).shape[0]
     extra = 0 if motion.extra_rows is None else motion.extra_rows.shape[0]
@@ -127,7 +129,7 @@ def correlated_map_crlb(
         cells_bytes(size, size, copies=4) + cells_bytes(n * m, n * m, copies=2),
         f"the correlated-error bound's covariance of {size} readings",
     )
-    cov = _reading_covariance(beams, std, float(error_rms), float(error_corr_m), n, extra)
+    cov = reading_covariance(beams, std, float(error_rms), float(error_corr_m), n, extra)
     last, z, cross = state_covariances(motion)
     coef, sample = _coefficients(beams, motion, n)
     flat = z.transpose(0, 2, 1, 3).reshape(n * m, n * m)
@@ -141,6 +143,15 @@ def correlated_map_crlb(
     return float(np.trace(h @ posterior @ h.T))
 
 
+def check_correlated_error(error_rms: float, error_corr_m: float) -> None:
+    """Refuse a negative rms or length, or an rms without a positive length (ValueError)."""
+    if error_rms < 0 or error_corr_m < 0 or (error_rms > 0 and not error_corr_m > 0):
+        raise ValueError(
+            "error_rms must be >= 0 and error_corr_m > 0 with it, got "
+            f"{error_rms} and {error_corr_m}"
+        )
+
+
 class _Beams:
     """Every valid beam of a trial as one reading: sample, gradient, field, footprint, var."""
 
@@ -152,8 +163,12 @@ class _Beams:
         self.white = np.asarray(white, float)
 
 
-def _trial_beams(trial, grid: Grid, error_rms: float, beam_var) -> _Beams:
-    """The trial's valid beams, the primary field's first (field 0), then each further one."""
+def trial_beams(trial, grid: Grid, error_rms: float, beam_var) -> _Beams:
+    """The trial's valid beams, the primary field's first (field 0), then each further one.
+
+    Each beam's white variance is the declared one plus the map's error at the track
+    beyond ``error_rms^2``; its gradient is the prior map's at its true footprint.
+    """
     prior = _prior_of(trial, grid)
     declared = trial_beam_variance(trial) if beam_var is None else beam_var
     excess = max(map_error_variance_at_track(trial, grid, prior) - error_rms**2, 0.0)
@@ -187,10 +202,28 @@ def _trial_beams(trial, grid: Grid, error_rms: float, beam_var) -> _Beams:
     )
 
 
-def _reading_covariance(
+def reading_covariance(
     beams: _Beams, offset_std, error_rms: float, error_corr_m: float, n: int, extra: int
 ) -> np.ndarray:
-    """``R``: the beams' errors (white, correlated, offsets), then the DVL rows' (unit)."""
+    """``R``: the beams' errors (white, correlated, offsets), then the DVL rows' (unit).
+
+    Parameters
+    ----------
+    beams : _Beams
+        The trial's valid beams (:func:`trial_beams`).
+    offset_std : float or array_like
+        Every field's constant offset's prior 1-sigma, map units.
+    error_rms, error_corr_m : float
+        The primary field's correlated map error: standard deviation (map units) and
+        correlation length (metres).
+    n, extra : int
+        Samples, and DVL rows per sample (0: none).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(N + n extra, N + n extra)`` covariance, map units squared (the DVL rows' unit).
+    """
     count = beams.sample.size
     cov = np.zeros((count + n * extra, count + n * extra))
     beam = cov[:count, :count]

@@ -215,7 +215,7 @@ def zzb_track(
     valid = np.isfinite(np.asarray(readings, float)) & np.isfinite(clean)
     var = np.broadcast_to(np.asarray(beam_var, float), (trial.offsets.shape[0],))
     width = float(np.min(likelihood_width(trial, grid, var)))
-    levels = _ladder(sd, width, ladder)
+    levels = shift_levels(sd, width, ladder)
     d2 = [np.zeros((u.size, v.size)) for u, v in levels]
     alive = [True] * len(levels)
     out = np.empty(n)
@@ -235,8 +235,19 @@ def zzb_track(
     return out
 
 
-def _ladder(sd: np.ndarray, width: float, ladder: ShiftLadder) -> list:
-    """``[(u, v), ...]``: node coordinates of each grid of shifts, outer first, metres."""
+def shift_levels(sd: np.ndarray, width: float, ladder: ShiftLadder) -> list:
+    """``[(u, v), ...]``: node coordinates of each grid of shifts, outer first, metres.
+
+    Parameters
+    ----------
+    sd : numpy.ndarray
+        ``(2,)`` prior standard deviations along its principal axes, metres.
+    width : float
+        The narrowest likelihood width, metres: the finest grid's step is
+        ``ladder.finest_width_fraction`` of it.
+    ladder : ShiftLadder
+        The grids.
+    """
     half = ladder.outer_nodes // 2
     inner = ladder.inner_nodes // 2
     check_allocation(
@@ -272,6 +283,21 @@ def _bound(levels: list, d2: list, alive: list, sd: np.ndarray, drop_below: floa
         h[1].append(v[iv:])
         f[1].append(a[:, iv:].max(axis=0))
     return sum(ziv_zakai_integral(np.concatenate(h[j]), np.concatenate(f[j])) for j in (0, 1))
+
+
+def bound_of_levels(levels: list, d2: list, sd: np.ndarray) -> float:
+    """The bound on the trace from every grid of shifts and its final ``d^2``, m^2.
+
+    Parameters
+    ----------
+    levels : list
+        :func:`shift_levels`.
+    d2 : list of numpy.ndarray
+        ``(u.size, v.size)`` squared distance of the readings at each level's shifts.
+    sd : numpy.ndarray
+        ``(2,)`` prior standard deviations along the principal axes, metres.
+    """
+    return _bound(levels, d2, [True] * len(levels), sd, 0.0)
 
 
 def combined_track_bound(crlb_var, zzb) -> np.ndarray:
