@@ -152,7 +152,7 @@ def check_offset_per_hypothesis(method: str, value) -> None:
         )
 
 
-def check_offset_smooth(method: str, value) -> None:
+def check_offset_smooth(method: str, value, rates: str = "own") -> None:
     """Refuse an ``offset_smooth_m`` setting that is not None or a finite length >= 0.
 
     Parameters
@@ -161,6 +161,8 @@ def check_offset_smooth(method: str, value) -> None:
         The method's name, for the message.
     value : object
         The setting, metres.
+    rates : str
+        The method's ``offset_rates``: a smooth offset is weighed with ``own`` only.
     """
     if value is None:
         return
@@ -168,6 +170,8 @@ def check_offset_smooth(method: str, value) -> None:
         raise ConfigError(f"{method}: offset_smooth_m must be a length in metres, got {value!r}")
     if not (np.isfinite(value) and value >= 0):
         raise ConfigError(f"{method}: offset_smooth_m must be finite and >= 0, got {value}")
+    if value and rates != "own":
+        raise ConfigError(f"{method}: offset_smooth_m needs offset_rates=own")
 
 
 def matern_transition(scale: float, variance: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -345,7 +349,8 @@ class HypothesisOffset:
         The smooth model starts at its stationary law (offset ``N(0, variance)``, rate
         per metre ``N(0, 3 variance / scale^2)``) and takes an equal share of the prior: every
         model's probability is scaled by ``K / (K + 1)``. It is weighed last, after the
-        fastest walk; :meth:`shared` refuses it (``offset_rates`` ``own`` only).
+        fastest walk, and only beside rates each hypothesis weighs by its own residuals
+        (``offset_rates=own``: :meth:`shared` takes the last model for the fastest walk).
 
         Parameters
         ----------
@@ -354,6 +359,8 @@ class HypothesisOffset:
         variance : float
             Stationary variance of the offset, map units squared.
         """
+        if self.shared_steady:
+            raise ConfigError("a smooth offset is weighed with offset_rates=own only")
         k = self.models
         shape = self.means.shape[1:]
         zeros = np.zeros((1, *shape))
@@ -409,24 +416,25 @@ class HypothesisOffset:
                 means=self.means * a.reshape(-1, *([1] * (self.means.ndim - 1))),
                 variances=a * a * self.variances + self.stationary * (1.0 - a * a),
             )
-        if self.scales is None:
-            return walked
-        return walked._smoothed(self, max(float(travelled), 0.0))
+        return walked._smoothed(max(float(travelled), 0.0))
 
-    def _smoothed(self, before: HypothesisOffset, dt: float) -> HypothesisOffset:
-        """These offsets with each smooth model's moved from ``before`` over ``dt`` m."""
-        scales, rates, rate_cov = before.scales, before.slopes, before.slope_cov
+    def _smoothed(self, dt: float) -> HypothesisOffset:
+        """These offsets with each smooth model's moved over ``dt`` metres.
+
+        A smooth model's walk is 0, so the walks' step above left it as it was.
+        """
+        scales, rates, rate_cov = self.scales, self.slopes, self.slope_cov
         if scales is None or rates is None or rate_cov is None:
             return self
         means, variances = self.means.copy(), self.variances.copy()
         slopes, slope_cov = rates.copy(), rate_cov.copy()
         for k in np.flatnonzero(scales > 0):
-            f, q = matern_transition(float(scales[k]), before.smooth_variance, dt)
-            b, r = before.means[k], rates[k]
+            f, q = matern_transition(float(scales[k]), self.smooth_variance, dt)
+            b, r = self.means[k], rates[k]
             means[k] = f[0, 0] * b + f[0, 1] * r
             slopes[k] = f[1, 0] * b + f[1, 1] * r
             cross, rate_var = rate_cov[k]
-            cov = np.array([[before.variances[k], cross], [cross, rate_var]])
+            cov = np.array([[self.variances[k], cross], [cross, rate_var]])
             cov = f @ cov @ f.T + q
             variances[k] = cov[0, 0]
             slope_cov[k] = cov[0, 1], cov[1, 1]
@@ -569,8 +577,6 @@ class HypothesisOffset:
         """
         if not self.shared_steady:
             return self
-        if self.scales is not None:
-            raise ConfigError("a smooth offset is weighed with offset_rates=own only")
         lp = self.log_prob.reshape(self.models, -1)
         weight = np.asarray(log_weight, dtype=float).reshape(-1)
         steady = logsumexp(lp[:-1], axis=0)

@@ -282,9 +282,7 @@ class ParticleSettings(RecursiveFilter):
             walk_factors(0.0, self.slow_offset_walk)
         check_offset_walk(self.name, self.offset_walk)
         check_offset_rates(self.name, self.offset_rates)
-        check_offset_smooth(self.name, self.offset_smooth_m)
-        if self.offset_smooth_m and self.offset_rates != "own":
-            raise ConfigError(f"{self.name}: offset_smooth_m needs offset_rates=own")
+        check_offset_smooth(self.name, self.offset_smooth_m, self.offset_rates)
         check_offset_per_hypothesis(self.name, self.offset_per_hypothesis)
         name = self.name
         if self.particles < 10 or self.max_particles < self.particles:
