@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -127,10 +129,10 @@ def _smooth_error_mission():
 def test_a_smooth_map_error_is_not_taken_for_a_still_offset():
     """A map error over 1.5 km, one reading every 200 m: the walks read it as a level.
 
-    On trials 8 and 9 the default pmf ends 1547 and 2966 m off with NEES 24 and 40 (its
-    walks explain the wandering error as an offset that holds, and the wrong path's
-    residuals agree with it); with a smooth offset of 2 km beside them it ends 740 and
-    794 m off, NEES 1.5 and 1.8.
+    On trials 8 and 9 pmf with the walks alone ends 1547 and 2966 m off with NEES 24 and
+    40 (its walks explain the wandering error as an offset that holds, and the wrong
+    path's residuals agree with it); by default on a gravity map, with a smooth offset
+    of 2 km beside them, it ends 740 and 794 m off, NEES 1.5 and 1.8.
     """
     from conftest import trial_ends
 
@@ -139,7 +141,49 @@ def test_a_smooth_map_error_is_not_taken_for_a_still_offset():
     def ends(spec):
         return trial_ends(scen, grid, spec, (8, 9))
 
-    for error, nees in ends("pmf"):
+    for error, nees in ends("pmf:offset_smooth_m=0"):
         assert error > 1400.0 and nees > 20.0, (error, nees)
-    for error, nees in ends("pmf:offset_smooth_m=2000"):
+    default = ends("pmf")
+    for error, nees in default:
         assert error < 900.0 and nees < 3.0, (error, nees)
+    assert ends("pmf:offset_smooth_m=2000") == default
+
+
+def test_the_default_length_is_the_map_kinds():
+    """Unset, the smooth offset is the map kind's: 2 km on gravity, none on depth."""
+    from geofix.filters.nuisance import GRAVITY_OFFSET_SMOOTH_M, default_offset_smooth
+
+    depth = _flat()
+    gravity = Grid(
+        values=depth.values, x0=0.0, y0=0.0, dx=10.0, dy=10.0, kind="gravity", units="mGal"
+    )
+    magnetic = Grid(
+        values=depth.values, x0=0.0, y0=0.0, dx=10.0, dy=10.0, kind="magnetic", units="nT"
+    )
+    assert GRAVITY_OFFSET_SMOOTH_M == 2000.0
+    assert default_offset_smooth(gravity) == GRAVITY_OFFSET_SMOOTH_M
+    assert default_offset_smooth(depth) == 0.0 and default_offset_smooth(magnetic) == 0.0
+    obs = replace(_obs([1.0], 1.0), bias_smooth_m=1500.0)
+    own = HypothesisOffset.start(4, obs)
+    assert own.scales is not None and own.scales[-1] == 1500.0
+    assert HypothesisOffset.start(4, obs, smooth=0.0).scales is None
+    assert HypothesisOffset.start(4, obs, smooth=700.0).scales[-1] == 700.0
+    # beside rates the posterior shares, the default is none (and never a refusal)
+    assert HypothesisOffset.start(4, obs, fast=10.0, rates="shared").scales is None
+
+
+def test_a_depth_mission_weighs_no_smooth_offset_by_default(small_mission):
+    """On a depth map the default is bit-identical to ``offset_smooth_m=0``."""
+    from geofix.evaluate.runner import method_rng, run_trial
+    from geofix.sim.simulate import prepare_map, simulate_trial
+
+    scen = small_mission("smooth-default-depth")
+    grid = prepare_map(scen)
+    trial = simulate_trial(scen, grid, 0)
+    for name in ("pmf", "pf"):
+        plain = run_trial(parse_method_spec(name), trial, grid, method_rng(1, 0, name))
+        off = run_trial(
+            parse_method_spec(f"{name}:offset_smooth_m=0"), trial, grid, method_rng(1, 0, name)
+        )
+        np.testing.assert_array_equal(plain.estimate, off.estimate)
+        np.testing.assert_array_equal(plain.covariance, off.covariance)

@@ -90,6 +90,10 @@ class Observation:
         A second, faster walk rate the per-hypothesis offset weighs unless the filter's
         ``fast_offset_walk`` says otherwise, as a factor on ``bias_walk`` (0: the declared
         rate alone; :func:`geofix.filters.nuisance.default_fast_offset_walk`).
+    bias_smooth_m : float
+        The length scale of a smooth offset the per-hypothesis offset weighs beside its
+        walks unless the filter's ``offset_smooth_m`` says otherwise, metres along the
+        track (0: none; :func:`geofix.filters.nuisance.default_offset_smooth`).
     map_modes : numpy.ndarray or None
         ``(b, k)`` shapes of the map's error across the ping's beams (a tilt and a
         curvature across a swath), each column a shape times its 1-sigma, map units: the
@@ -107,6 +111,7 @@ class Observation:
     bias_walk: float = 0.0
     bias_per_hypothesis: bool = False
     bias_fast_walk: float = 0.0
+    bias_smooth_m: float = 0.0
     map_modes: np.ndarray | None = None
 
 

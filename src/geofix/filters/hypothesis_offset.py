@@ -33,7 +33,8 @@ are independent) reads its slow wander as a level that stays: a filter given a l
 the distance travelled of that length scale whose stationary variance is the offset's
 prior, carried per hypothesis as a level and its rate of change per metre
 (:func:`matern_transition`); its likelihood and update are the level's, the rate
-following through their covariance.
+following through their covariance. On a gravity map the filters weigh one of 2 km by
+default (:func:`geofix.filters.nuisance.default_offset_smooth`).
 
 The hypotheses are moved, resampled, convolved and regridded by their filter; these
 values follow them (:meth:`HypothesisOffset.take`, :meth:`HypothesisOffset.mixed`,
@@ -283,7 +284,7 @@ class HypothesisOffset:
         fast: float | None = None,
         rates: str = "own",
         slow: float | None = None,
-        smooth: float = 0.0,
+        smooth: float | None = None,
     ) -> HypothesisOffset | None:
         """The prior ``N(0, obs.bias_var)`` for every hypothesis, or None without one.
 
@@ -313,11 +314,12 @@ class HypothesisOffset:
             as a factor on ``bias_walk`` below 1 (the filter's ``slow_offset_walk``;
             :func:`walk_factors`); None: :data:`SLOW_OFFSET_WALK`; 0: none. The rates are
             equally likely a priori.
-        smooth : float
+        smooth : float, optional
             A smooth offset's length scale along the track, metres (the filter's
             ``offset_smooth_m``; 0: none): a Matern-3/2 process of stationary variance
             ``bias_var`` weighed beside the walks, as likely a priori as each
-            (:meth:`with_smooth`).
+            (:meth:`with_smooth`). None: the ping's ``bias_smooth_m`` (the map kind's
+            default) with ``rates`` ``own``, none with ``shared`` or ``pooled``.
         """
         if not (obs.bias_per_hypothesis and obs.bias_var > 0):
             return None
@@ -325,6 +327,8 @@ class HypothesisOffset:
         walk = float(obs.bias_walk)
         fast = obs.bias_fast_walk if fast is None else fast
         slow = SLOW_OFFSET_WALK if slow is None else slow
+        if smooth is None:
+            smooth = float(obs.bias_smooth_m) if rates == "own" else 0.0
         factors = np.asarray(walk_factors(fast, slow), dtype=float)
         k = 1 if walk <= 0 else factors.size
         factors = factors[:k]

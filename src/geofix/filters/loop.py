@@ -51,6 +51,7 @@ from geofix.filters.nuisance import (
     SwathModes,
     correlated_share,
     default_fast_offset_walk,
+    default_offset_smooth,
     read_at_points,
     representation_std,
     swath_shapes,
@@ -506,6 +507,7 @@ class FilterStepper:
             bias_walk=self.offset.walk,
             bias_per_hypothesis=True,
             bias_fast_walk=default_fast_offset_walk(self.grid, weighed.values.size),
+            bias_smooth_m=default_offset_smooth(self.grid),
         )
 
     def _with_representation(self, obs: Observation) -> Observation:

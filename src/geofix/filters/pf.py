@@ -244,7 +244,8 @@ class ParticleSettings(RecursiveFilter):
         many degrees of freedom (None, the default: the Gaussian).
     offset_smooth_m : float or None
         As :class:`geofix.filters.pmf.Pmf`'s: a smooth offset of that length scale
-        along the track, metres, weighed beside the walks (None or 0, the default: none).
+        along the track, metres, weighed beside the walks (0: none; None, the default:
+        the map kind's, 2 km on a gravity map).
     """
 
     name: ClassVar[str] = "particles"
@@ -365,7 +366,7 @@ class ParticleSettings(RecursiveFilter):
             self.fast_offset_walk,
             self.offset_rates,
             self.slow_offset_walk,
-            float(self.offset_smooth_m or 0.0),
+            None if self.offset_smooth_m is None else float(self.offset_smooth_m),
         )
 
     def offset_moments(self, state, field: int | None = None) -> tuple[float, float] | None:

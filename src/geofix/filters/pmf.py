@@ -304,13 +304,16 @@ class Pmf(RecursiveFilter):
         posterior by a bounded amount (:func:`geofix.measurement.student_t`). 4 is a
         common choice; above about 30 it is the Gaussian.
     offset_smooth_m : float or None
-        A smooth offset's length scale along the track, metres (None or 0, the default:
-        none): each node weighs beside its walks an offset that varies smoothly with the
-        distance travelled (a Matern-3/2 process of that length at the offset's prior
-        variance, carried as a level and its rate per metre;
+        A smooth offset's length scale along the track, metres (0: none): each node
+        weighs beside its walks an offset that varies smoothly with the distance
+        travelled (a Matern-3/2 process of that length at the offset's prior variance,
+        carried as a level and its rate per metre;
         :meth:`geofix.filters.hypothesis_offset.HypothesisOffset.with_smooth`), as a map
         error correlated over kilometres reads along a track. With ``offset_rates=own``
-        only.
+        only. None (the default): the map kind's
+        (:func:`geofix.filters.nuisance.default_offset_smooth`: 2 km on a gravity map,
+        none on a depth or magnetic map; none with ``offset_rates`` ``shared`` or
+        ``pooled``).
 
     References
     ----------
@@ -495,7 +498,7 @@ class Pmf(RecursiveFilter):
             self.fast_offset_walk,
             self.offset_rates,
             self.slow_offset_walk,
-            float(self.offset_smooth_m or 0.0),
+            None if self.offset_smooth_m is None else float(self.offset_smooth_m),
         )
 
     def _update_fields(self, state: PmfState, obs: Observation, grid: Grid, fields) -> PmfState:
