@@ -53,6 +53,36 @@ def log_normalised(log_weight: np.ndarray) -> np.ndarray:
     return log_weight - (np.log1p(total) + np.log(count) + top)
 
 
+def log_sum_exp_first(values: np.ndarray) -> np.ndarray:
+    """``scipy.special.logsumexp(values, axis=0)`` bit for bit, without its overhead.
+
+    As :func:`log_normalised`, along the first axis: each column's maximal terms kept
+    out of the sum (``log1p(s) + log(m) + max``); a non-finite maximum anywhere goes to
+    scipy.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(K, ...)`` log-values.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(...)`` the log of each column's sum of exponentials.
+    """
+    values = np.asarray(values, dtype=float)
+    top = values.max(axis=0)
+    if not np.isfinite(top).all():
+        return logsumexp(values, axis=0)
+    at_top = values == top
+    count = np.count_nonzero(at_top, axis=0).astype(float)
+    shifted = values - top
+    shifted[at_top] = -np.inf
+    total = np.exp(shifted).sum(axis=0)
+    total = np.where(total != 0, total / count, total)
+    return np.log1p(total) + np.log(count) + top
+
+
 def effective_sample_size(weights: np.ndarray) -> float:
     """``1 / sum(w^2)`` of normalised weights ``(M,)``: between 1 and ``M``."""
     return float(1.0 / np.sum(np.asarray(weights, dtype=float) ** 2))

@@ -51,6 +51,7 @@ from scipy.special import logsumexp
 
 from geofix.errors import ConfigError
 from geofix.filters._grid_ops import node_positions
+from geofix.filters._weights import log_sum_exp_first
 from geofix.filters.base import Motion, Observation
 from geofix.filters.offset_sums import ResidualSums
 from geofix.maps.grid import Grid
@@ -465,7 +466,7 @@ class HypothesisOffset:
         each = np.stack(
             [log_likelihood(float(v), b) for v, b in zip(self.variances, self.means, strict=True)]
         )
-        return logsumexp(each + self.log_prob, axis=0)
+        return log_sum_exp_first(each + self.log_prob)
 
     def moments(self, weights) -> tuple[float, float]:
         """Mean and variance of the offset over the posterior ``weights`` (summing to one).
@@ -583,7 +584,7 @@ class HypothesisOffset:
             return self
         lp = self.log_prob.reshape(self.models, -1)
         weight = np.asarray(log_weight, dtype=float).reshape(-1)
-        steady = logsumexp(lp[:-1], axis=0)
+        steady = log_sum_exp_first(lp[:-1])
         mass = weight + steady
         q = logsumexp(lp[:-1] - steady + mass, axis=1)
         q = q - logsumexp(q)
@@ -627,7 +628,7 @@ class HypothesisOffset:
             ok, np.log(np.maximum(arrived, 1e-300) / np.where(ok, total, 1.0)), self.log_prob
         )
         return replace(
-            self, means=means, log_prob=log_prob - logsumexp(log_prob, axis=0), slopes=slopes
+            self, means=means, log_prob=log_prob - log_sum_exp_first(log_prob), slopes=slopes
         )
 
     def pooled(self, points, log_weight, width: float) -> HypothesisOffset:
@@ -651,15 +652,16 @@ class HypothesisOffset:
 
     def regridded(self, old, new, shape) -> HypothesisOffset:
         """The node offsets moved from grid ``old`` onto ``new`` (:func:`regridded_offsets`)."""
-        means = np.stack([regridded_offsets(b, old, new, shape) for b in self.means])
+        indices = _old_indices(old, new, shape, self.means.shape[1:])
+        means = np.stack([_read_on(b, indices) for b in self.means])
         slopes = self.slopes
         if slopes is not None:
-            slopes = np.stack([regridded_offsets(r, old, new, shape) for r in slopes])
+            slopes = np.stack([_read_on(r, indices) for r in slopes])
         if self.models == 1:
             return replace(self, means=means, log_prob=np.zeros_like(means), slopes=slopes)
-        log_prob = np.stack([regridded_offsets(lp, old, new, shape) for lp in self.log_prob])
+        log_prob = np.stack([_read_on(lp, indices) for lp in self.log_prob])
         return replace(
-            self, means=means, log_prob=log_prob - logsumexp(log_prob, axis=0), slopes=slopes
+            self, means=means, log_prob=log_prob - log_sum_exp_first(log_prob), slopes=slopes
         )
 
 
@@ -705,12 +707,12 @@ def _pooled(log_prob: np.ndarray, log_weight: np.ndarray, pooling: float) -> np.
     q = logsumexp(log_prob + log_weight, axis=1)
     q = q - logsumexp(q)
     pooled = (1.0 - pooling) * log_prob + pooling * q[:, None]
-    return pooled - logsumexp(pooled, axis=0)
+    return pooled - log_sum_exp_first(pooled)
 
 
 def _returned(log_prob: np.ndarray, log_prior: np.ndarray) -> np.ndarray:
     """``(K, N)`` normalised rate probabilities with :data:`WALK_RETURN` of the prior back."""
-    post = log_prob - logsumexp(log_prob, axis=0)
+    post = log_prob - log_sum_exp_first(log_prob)
     return np.logaddexp(np.log1p(-WALK_RETURN) + post, np.log(WALK_RETURN) + log_prior)
 
 
@@ -776,13 +778,23 @@ def regridded_offsets(mean: np.ndarray, old, new, shape) -> np.ndarray:
         ``(M0, M1)`` offset means (a new node beyond the old grid takes its nearest
         old node's).
     """
+    return _read_on(mean, _old_indices(old, new, shape, mean.shape))
+
+
+def _old_indices(old, new, shape, old_shape) -> list[np.ndarray]:
+    """``[rows, cols]``: the fractional indices on grid ``old`` of every node of ``new``."""
     centre, axes, spacing = new
     xy = node_positions(centre, axes, spacing, shape) - np.asarray(old[0], dtype=float)
     along = xy @ np.asarray(old[1], dtype=float)  # coordinates along the old axes
-    n0, n1 = mean.shape
+    n0, n1 = old_shape
     rows = along[..., 0] / old[2][0] + 0.5 * (n0 - 1)
     cols = along[..., 1] / old[2][1] + 0.5 * (n1 - 1)
-    return ndimage.map_coordinates(mean, [rows, cols], order=1, mode="nearest")
+    return [rows, cols]
+
+
+def _read_on(values: np.ndarray, indices: list[np.ndarray]) -> np.ndarray:
+    """``values`` on the old grid read at ``indices`` (:func:`_old_indices`), linearly."""
+    return ndimage.map_coordinates(values, indices, order=1, mode="nearest")
 
 
 __all__ = [
@@ -874,4 +886,4 @@ def pooled_offsets(points, log_weight, means, log_prob, width: float):
     ok = total > 1e-300
     share = np.log(np.maximum(arrived, 1e-300) / np.where(ok, total, 1.0))
     new_prob = np.where(ok, share, log_prob)
-    return out_means, new_prob - logsumexp(new_prob, axis=0)
+    return out_means, new_prob - log_sum_exp_first(new_prob)

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geofix.filters._spd_kernels import quadratic_and_logdet
 from geofix.measurement import OFF_MAP_LOG_LIKELIHOOD, student_t, weighted_gram
 
 
@@ -188,10 +189,11 @@ def _explained(inner: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray
     """``u^T inner^-1 u`` and ``log det inner`` of every hypothesis.
 
     Woodbury's identity and the matrix determinant lemma, as
-    :func:`geofix.measurement.low_rank_log_likelihood`.
+    :func:`geofix.measurement.low_rank_log_likelihood`; ``inner`` is ``I + Z^T W Z``,
+    positive definite, so one Cholesky factor each
+    (:func:`geofix.filters._spd_kernels.quadratic_and_logdet`).
     """
-    explained = np.einsum("mc,mc->m", u, np.linalg.solve(inner, u[..., None])[..., 0])
-    return explained, np.linalg.slogdet(inner)[1]
+    return quadratic_and_logdet(np.ascontiguousarray(inner), np.ascontiguousarray(u))
 
 
 __all__ = ["ResidualSums"]
