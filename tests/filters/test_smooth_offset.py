@@ -187,3 +187,38 @@ def test_a_depth_mission_weighs_no_smooth_offset_by_default(small_mission):
         )
         np.testing.assert_array_equal(plain.estimate, off.estimate)
         np.testing.assert_array_equal(plain.covariance, off.covariance)
+
+
+def _offset_after(spec: str, scen, grid, pings: int):
+    """The filter's own offset state after ``pings`` pings through a FilterStepper."""
+    from geofix.filters.base import motions, observations
+    from geofix.filters.loop import FilterSettings, FilterStepper
+    from geofix.sim.simulate import simulate_trial
+
+    problem = simulate_trial(scen, grid, 0).problem(grid)
+    stepper = FilterStepper(
+        parse_method_spec(spec), grid, FilterSettings(), np.random.default_rng(5)
+    )
+    stepper.start(problem)
+    steps, obs = motions(problem), observations(problem)
+    for k in range(pings):
+        if k:
+            stepper.predict(steps[k - 1])
+        stepper.update(obs[k], float(problem.times[k]))
+    return stepper.state.offset
+
+
+@pytest.mark.parametrize("name", ["pmf", "pf:particles=500", "mpf:particles=500"])
+def test_every_filter_weighs_the_gravity_default_and_not_on_depth(name, small_mission):
+    from conftest import gravity_map_error_mission
+    from geofix.sim.simulate import prepare_map
+
+    scen, grid = gravity_map_error_mission("smooth-wiring", {"offset": 1.0}, 3)
+    offset = _offset_after(name, scen, grid, 3)
+    assert offset.scales is not None and offset.scales[-1] == 2000.0
+    # the smooth model has moved with the track: its rates are no longer the prior's zeros
+    assert np.any(offset.slopes[-1] != 0.0)
+    sep = "," if ":" in name else ":"
+    assert _offset_after(f"{name}{sep}offset_smooth_m=0", scen, grid, 3).scales is None
+    depth = small_mission("smooth-wiring-depth")
+    assert _offset_after(name, depth, prepare_map(depth), 3).scales is None
