@@ -1045,6 +1045,7 @@ def correlated_share(offsets, cell: float, step_m: float | None = None) -> float
 
 __all__ = [
     "GRAVITY_FAST_OFFSET_WALK",
+    "GRAVITY_OFFSET_SMOOTH_M",
     "MAP_MODELS",
     "SHARE_FLOOR_BEAMS",
     "SHARE_WEIGHT_FLOOR",
@@ -1059,6 +1060,7 @@ __all__ = [
     "check_map_model",
     "correlated_share",
     "default_fast_offset_walk",
+    "default_offset_smooth",
     "default_offset_std",
     "read_at_points",
     "representation_std",
