@@ -163,6 +163,11 @@ def test_the_default_length_is_the_map_kinds():
     assert GRAVITY_OFFSET_SMOOTH_M == 2000.0
     assert default_offset_smooth(gravity) == GRAVITY_OFFSET_SMOOTH_M
     assert default_offset_smooth(depth) == 0.0 and default_offset_smooth(magnetic) == 0.0
+    # on a grid coarser than 1 km the length is two of its cells
+    coarse = Grid(
+        values=depth.values, x0=0.0, y0=0.0, dx=15000.0, dy=17000.0, kind="gravity", units="mGal"
+    )
+    assert default_offset_smooth(coarse) == 32000.0
     obs = replace(_obs([1.0], 1.0), bias_smooth_m=1500.0)
     own = HypothesisOffset.start(4, obs)
     assert own.scales is not None and own.scales[-1] == 1500.0

@@ -57,9 +57,11 @@ GRAVITY_FAST_OFFSET_WALK = 10.0
 #: (the default ``offset_per_hypothesis``): across a swath the error of a coarse map is relief below
 #: its cells, which moves the swath's mean level from ping to ping.
 SWATH_FAST_OFFSET_WALK = 10.0
-#: The length scale, metres along the track, of the smooth offset a gravity map's
+#: The shortest length scale, metres along the track, of the smooth offset a gravity map's
 #: per-hypothesis offset weighs beside its walks by default (:func:`default_offset_smooth`).
 GRAVITY_OFFSET_SMOOTH_M = 2000.0
+#: On a map coarser than half that, the default length in the map's cells.
+SMOOTH_OFFSET_CELLS = 2.0
 
 
 MAP_MODELS = ("exact", "adaptive", "imperfect")
@@ -137,18 +139,25 @@ def default_offset_smooth(grid: Grid) -> float:
     Returns
     -------
     float
-        A gravity map: :data:`GRAVITY_OFFSET_SMOOTH_M`. A gravity map's error is correlated
-        over kilometres (an altimetry grid's, an interpolated gap's); read along a
-        track it varies smoothly with the distance travelled, which independent walk
-        steps read as a level that holds and a smooth (Matern-3/2) offset weighs as it is.
-        On the section *Imperfect maps* and on held-out gravity maps it removes the
-        false fixes of errors correlated over 1-1.5 km and is within a few per cent of
-        the walks alone where the error's length is 2.5 km or more. A depth map: 0
+        A gravity map: :data:`GRAVITY_OFFSET_SMOOTH_M`, or :data:`SMOOTH_OFFSET_CELLS`
+        of its cells where that is longer. A gravity map's error is correlated over
+        kilometres (an altimetry grid's, an interpolated gap's); read along a track it
+        varies smoothly with the distance travelled, which independent walk steps read
+        as a level that holds and a smooth (Matern-3/2) offset weighs as it is. On the
+        section *Imperfect maps* and on held-out gravity maps 2 km removes the false
+        fixes of errors correlated over 1-1.5 km and is within a few per cent of the
+        walks alone where the error's length is 2.5 km or more. A length shorter than
+        the error's is the one to avoid (the error then seems to forget itself, and
+        stretches of track count as independent evidence), and a grid holds no error
+        structure finer than its cells: on a coarse grid (a 10' global model) the
+        length is the cells'. A depth map: 0
         (none): a single-beam profile against a coarse grid reads the relief below the
         grid's cells, which a smooth offset would absorb (on the real ship tracks it
         claimed ``converged`` beyond 3 sigma). A magnetic map: 0, not yet measured.
     """
-    return GRAVITY_OFFSET_SMOOTH_M if grid.kind == "gravity" else 0.0
+    if grid.kind != "gravity":
+        return 0.0
+    return max(GRAVITY_OFFSET_SMOOTH_M, SMOOTH_OFFSET_CELLS * grid.cell_size)
 
 
 def unscented_points(mean, cov) -> tuple[np.ndarray, np.ndarray]:
@@ -1049,6 +1058,7 @@ __all__ = [
     "MAP_MODELS",
     "SHARE_FLOOR_BEAMS",
     "SHARE_WEIGHT_FLOOR",
+    "SMOOTH_OFFSET_CELLS",
     "SWATH_FAST_OFFSET_WALK",
     "WHITE_EXCESS",
     "CommonOffset",
