@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -55,8 +56,6 @@ def main(argv=None) -> None:
     parser.add_argument("--spec", action="append", help="a method spec (repeatable)")
     args = parser.parse_args(argv)
     specs = list(args.spec or SPECS)
-    import sys
-
     sys.path.insert(0, str(HERE))
     from geofix.evaluate.campaign import run_campaign
     from geofix.sim.scenario import load_scenario

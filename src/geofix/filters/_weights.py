@@ -35,30 +35,18 @@ def linear_weights(log_weight: np.ndarray) -> np.ndarray:
 def log_normalised(log_weight: np.ndarray) -> np.ndarray:
     """``log_weight - scipy.special.logsumexp(log_weight)`` for ``(M,)`` log-weights.
 
-    The same numbers, bit for bit, as scipy's ``logsumexp`` (its maximum terms kept out
-    of the sum: ``log1p(s) + log(m) + max``, ``m`` the count of maximal entries, ``s`` the
-    sum of the others' ``exp(a - max)`` over ``m``) without its generic-array overhead,
-    which dominates a few-thousand-particle step; a non-finite maximum goes to scipy.
+    The same numbers, bit for bit (:func:`log_sum_exp_first`), without scipy's
+    generic-array overhead, which dominates a few-thousand-particle step.
     """
-    top = log_weight.max()
-    if not np.isfinite(top):
-        return log_weight - logsumexp(log_weight)
-    at_top = log_weight == top
-    count = float(np.count_nonzero(at_top))
-    shifted = log_weight - top
-    shifted[at_top] = -np.inf
-    total = np.exp(shifted).sum()
-    if total != 0:
-        total = total / count
-    return log_weight - (np.log1p(total) + np.log(count) + top)
+    return log_weight - log_sum_exp_first(log_weight)
 
 
 def log_sum_exp_first(values: np.ndarray) -> np.ndarray:
     """``scipy.special.logsumexp(values, axis=0)`` bit for bit, without its overhead.
 
-    As :func:`log_normalised`, along the first axis: each column's maximal terms kept
-    out of the sum (``log1p(s) + log(m) + max``); a non-finite maximum anywhere goes to
-    scipy.
+    Each column's maximal terms kept out of the sum (``log1p(s) + log(m) + max``, ``m``
+    the count of maximal entries, ``s`` the sum of the others' ``exp(a - max)`` over
+    ``m``), as scipy computes it; a non-finite maximum anywhere goes to scipy.
 
     Parameters
     ----------
