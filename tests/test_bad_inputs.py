@@ -109,8 +109,20 @@ def test_yaml_syntax_error_is_one_line_with_file_line_and_column(tmp_path):
         ("tercom:metric", ["metric", "no value"]),
         ("[/b]", ["[/b]", "unknown method"]),
         ("icp", ["icp", "beams"]),
+        # settings joined by ':' instead of ',': an optional number told so, not a numpy error
+        ("pmf:offset_walk=0:fast_offset_walk=0", ["offset_walk", "cannot read", "as float"]),
+        ("pf:student_dof=four", ["student_dof", "'four'", "as float"]),
     ],
-    ids=["nan", "inf", "repeated", "no-equals", "markup", "icp-single-beam"],
+    ids=[
+        "nan",
+        "inf",
+        "repeated",
+        "no-equals",
+        "markup",
+        "icp-single-beam",
+        "colon-joined",
+        "optional-word",
+    ],
 )
 def test_bad_method_spec(tmp_path, spec, names):
     outcome = _run(tmp_path, _mission(tmp_path), method=spec, case=f"method {spec}")

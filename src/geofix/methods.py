@@ -292,7 +292,7 @@ def parse_method_spec(spec: str):
             )
         if key in kwargs:
             raise ConfigError(f"method {name!r}: setting {key!r} given twice in {spec!r}")
-        kwargs[key] = _convert(raw.strip(), settings[key][1], f"{name}:{key}")
+        kwargs[key] = _convert(raw.strip(), settings[key][1], f"{name}:{key}", settings[key][2])
     try:
         return cls(**kwargs)
     except (TypeError, ValueError) as exc:
@@ -345,8 +345,8 @@ def unknown_method_message(name: str, known: typing.Iterable[str]) -> str:
     return f"unknown method {name!r}{did_you_mean(name, names)} (known: {listing})"
 
 
-def _convert(raw: str, default: object, where: str):
-    value = _convert_raw(raw, default, where)
+def _convert(raw: str, default: object, where: str, kind: str = ""):
+    value = _convert_raw(raw, default, where, kind)
     numbers = value if isinstance(value, tuple) else (value,)
     if any(isinstance(v, float) and not math.isfinite(v) for v in numbers):
         raise ConfigError(f"{where}: value must be a finite number, got {raw!r}")
@@ -357,7 +357,9 @@ def _convert(raw: str, default: object, where: str):
 _BOOL_WORDS = {"true": True, "yes": True, "on": True, "false": False, "no": False, "off": False}
 
 
-def _convert_raw(raw: str, default: object, where: str):
+def _convert_raw(raw: str, default: object, where: str, kind: str = ""):
+    if default is None:
+        default = _optional_example(kind)
     try:
         if isinstance(default, bool):
             word = {"1": "true", "0": "false"}.get(raw, raw.lower())
@@ -375,6 +377,17 @@ def _convert_raw(raw: str, default: object, where: str):
         return raw
     except ValueError:
         raise ConfigError(f"{where}: cannot read {raw!r} as {type(default).__name__}") from None
+
+
+def _optional_example(kind: str) -> object:
+    """A value of the type an optional setting's annotation names (``float | None``: 0.0).
+
+    None where the annotation names no single scalar type: the value is then guessed.
+    """
+    names = {part.strip() for part in kind.split("|")} - {"None", "NoneType"}
+    if len(names) != 1:
+        return None
+    return {"float": 0.0, "int": 0, "bool": False}.get(names.pop())
 
 
 def _guess(raw: str):
