@@ -382,12 +382,13 @@ def _convert_raw(raw: str, default: object, where: str, kind: str = ""):
 def _optional_example(kind: str) -> object:
     """A value of the type an optional setting's annotation names (``float | None``: 0.0).
 
-    None where the annotation names no single scalar type: the value is then guessed.
+    None where the annotation names no single number type: the value is then guessed
+    (an optional bool's word is checked by the method itself, which names the words).
     """
     names = {part.strip() for part in kind.split("|")} - {"None", "NoneType"}
     if len(names) != 1:
         return None
-    return {"float": 0.0, "int": 0, "bool": False}.get(names.pop())
+    return {"float": 0.0, "int": 0}.get(names.pop())
 
 
 def _guess(raw: str):
