@@ -4,9 +4,10 @@
 :data:`ROWS` (a ``seabed:`` block on each held-out mission of ``benchmarks/heldout/``) for
 each method spec and prints one Markdown table: end RMS (m) / median NEES / false fixes
 (as the section *Imperfect maps* counts them). Campaigns are stored under
-``out/heldout/`` and resumed. The default specs are the filters at their defaults beside
-the walks alone (``offset_smooth_m=0``), the comparison on which a gravity map's default
-smooth offset was judged.
+``out/heldout/`` and resumed. The default specs are the INS alone (what a filter must beat
+for the map to have helped) and the filters at their defaults beside the walks alone
+(``offset_smooth_m=0``), the comparison on which a gravity map's default smooth offset was
+judged.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ ROWS = {
     },
 }
 SPECS = (
+    "ins",
     "pmf",
     "pf",
     "mpf",
