@@ -10,6 +10,9 @@ TITLE = "Imperfect maps — the prior map is not the seabed"
 ORDER = 72
 
 TRIALS, QUICK_TRIALS = 8, 2
+#: The dead-reckoned track alone, the map not read: what every filter must beat for the
+#: map to have helped.
+INS = "ins"
 METHODS = (
     "pmf",
     "pmf:map_model=exact",
@@ -19,11 +22,8 @@ METHODS = (
     "mpf:map_model=exact",
     "pmf:model=errstate",
     "tercom",
-    "ins",
+    INS,
 )
-#: The dead-reckoned track alone, the map not read: what every filter must beat for the
-#: map to have helped.
-INS = "ins"
 #: Further rows per scenario: the default weighs a slower and a faster offset walk beside
 #: the declared one (on the gravimeter and the multibeam pings); these rows weigh the
 #: declared and the faster alone, as the filters did before the slow rate.
