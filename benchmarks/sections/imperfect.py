@@ -150,7 +150,7 @@ def build(quick: bool) -> str:
             scen = _with_seabed(base, label, seabed)
             result = campaign(scen, list(methods), trials=trials, jobs=2)
             cell = float(base.map.resample_m) * (seabed or {}).get("cell_factor", 1)
-            bound, still, aware, zzb = _bound_m(scen, seabed, trials)
+            bound, still, aware, zzb, independent = _bound_m(scen, seabed, trials)
             default_nees, still_nees = [], {}
             chosen = {}
             for spec in methods:
@@ -196,6 +196,7 @@ def build(quick: bool) -> str:
                     f"{bound:.1f}",
                     f"{still:.1f}",
                     "-" if zzb is None else f"{zzb:.1f}",
+                    "-" if independent is None else f"{independent:.1f}",
                     f"{aware:.1f}",
                     f"{ins_rms:.1f}",
                     best[0],
@@ -224,6 +225,7 @@ def build(quick: bool) -> str:
                     "known-offset bound (m)",
                     "imperfect-map bound (m)",
                     "its Ziv-Zakai part (m)",
+                    "the same, error independent of the map (m)",
                     "offset-aware bound (m)",
                     "INS alone (m)",
                     "best default filter",
@@ -290,7 +292,9 @@ def _figure(base) -> str:
     )
 
 
-def _bound_m(scen, seabed: dict | None, trials: int) -> tuple[float, float, float, float | None]:
+def _bound_m(
+    scen, seabed: dict | None, trials: int
+) -> tuple[float, float, float, float | None, float | None]:
     """RMS over the trials of the three imperfect-map bounds at the end point, metres.
 
     All three are error-state bounds on the prior map's information and differ in the
@@ -311,34 +315,55 @@ def _bound_m(scen, seabed: dict | None, trials: int) -> tuple[float, float, floa
     far modes a smooth field and a map error of kilometres leave; the fourth value is
     the RMS of the latter alone (None on a multibeam map, whose tens of thousands of
     beams the joint covariance cannot hold).
+
+    The simulator adds the correlated error to the seabed (``prior = seabed + e``), so the
+    field given the prior map is the map's posterior
+    (:func:`geofix.maps.error_posterior.map_posterior`): the imperfect-map bound of a row
+    with a correlated error takes its mean's gradients and its covariance. The fifth value
+    is the same bound with the seabed taken as the prior map less an error independent of
+    the map (the prior map's gradients, the error's own covariance), as this section
+    reported it before (None without a correlated error, where the two are one).
     """
     from geofix.evaluate.crlb import imperfect_map_crlb, offset_state_crlb
     from geofix.evaluate.crlb_correlated import correlated_map_crlb
     from geofix.evaluate.zzb_correlated import correlated_map_zzb
+    from geofix.maps.error_posterior import map_posterior
     from geofix.sim.simulate import prepare_map, simulate_trial
 
     rms = float((seabed or {}).get("error_rms", 0.0))
     corr = float((seabed or {}).get("error_corr_m", 0.0))
     grid = prepare_map(scen)
-    known, still, aware, zzb = [], [], [], []
+    known, still, aware, zzb, independent = [], [], [], [], []
     global_bound = scen.map.kind == "gravity"
     for index in range(trials):
         trial = simulate_trial(scen, grid, index)
         known.append(imperfect_map_crlb(trial, grid, offset_var=0.0).recursive_var_m2)
+        posterior = None
         if rms > 0:
-            still.append(correlated_map_crlb(trial, grid, rms, corr))
+            prior = grid if trial.prior_map is None else trial.prior_map
+            posterior = map_posterior(prior, rms, corr)
+            still.append(correlated_map_crlb(trial, grid, rms, corr, posterior=posterior))
+            independent.append(correlated_map_crlb(trial, grid, rms, corr))
         else:
             bound = offset_state_crlb(trial, grid, offset_walk=0.0, prior_map=True)
             still.append(bound.recursive_var_m2)
         aware.append(offset_state_crlb(trial, grid, prior_map=True).recursive_var_m2)
         if global_bound:
-            zzb.append(correlated_map_zzb(trial, grid, rms, corr))
+            zzb.append(correlated_map_zzb(trial, grid, rms, corr, posterior=posterior))
             still[-1] = max(still[-1], zzb[-1])
+            if posterior is not None:
+                independent[-1] = max(independent[-1], correlated_map_zzb(trial, grid, rms, corr))
 
     def rms_of(values: list[float]) -> float:
         return float(np.sqrt(np.mean(values)))
 
-    return rms_of(known), rms_of(still), rms_of(aware), rms_of(zzb) if zzb else None
+    return (
+        rms_of(known),
+        rms_of(still),
+        rms_of(aware),
+        rms_of(zzb) if zzb else None,
+        rms_of(independent) if independent else None,
+    )
 
 
 def _ratio(rms, bound: float, factor: float | None = None) -> str:
@@ -432,6 +457,15 @@ def _intro(trials: int) -> str:
         "mission's readings under that covariance), which sees the far modes a smooth "
         "field and a map error of kilometres leave where the Cramér-Rao bound adds up "
         "the gradients at the truth alone (its own RMS in the column beside). "
+        "The simulator adds the correlated error to the seabed (prior = seabed + error), "
+        "so on those rows part of what the prior map shows is its error, and the field "
+        "given the map is the map's posterior (`geofix.maps.error_posterior.map_posterior`, "
+        "a Wiener filter with the field's power read from the map itself): the "
+        "imperfect-map bound reads the gradients of the posterior's mean and charges its "
+        "covariance. The column after the Ziv-Zakai part is the same bound with the "
+        "seabed taken as the prior map less an error independent of the map (the prior "
+        "map's own gradients), as this section reported it before: on the gravity rows "
+        "it credits the map's error with information it does not carry. "
         "The *offset-aware* bound has the offset a random walk at the filters' "
         "declared walk (1e-3 units^2/s) and the map error white "
         "(`geofix.evaluate.crlb.offset_state_crlb`): the limit of the problem the default "

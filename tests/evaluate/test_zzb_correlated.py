@@ -75,3 +75,25 @@ def test_a_second_field_and_a_bad_correlation_are_refused():
         correlated_map_zzb(replace(trial, fields=(object(),)), grid)
     known = replace(trial, sigma_position=np.zeros(10))
     assert correlated_map_zzb(known, grid) == 0.0
+
+
+def test_a_map_posterior_gives_its_mean_and_covariance_to_both_bounds():
+    # a posterior whose covariance is the same between every two readings is a constant
+    # offset of that variance more; its mean, not the prior map, is what the readings
+    # are compared with (half the plane's slope: a quarter of its information)
+    from geofix.maps.error_posterior import MapPosterior
+
+    grid = _plane()
+    trial = northward_trial(grid, 30, 60.0, (40.0, -25.0), 2.0, np.random.default_rng(1))
+    constant = MapPosterior(grid, np.full((4, 4), 16.0))
+    for bound in (correlated_map_crlb, correlated_map_zzb):
+        with_posterior = bound(trial, grid, offset_std=3.0, posterior=constant)
+        assert with_posterior == pytest.approx(bound(trial, grid, offset_std=5.0), rel=1e-9)
+    half = grid.with_values(0.5 * grid.values)
+    flatter = MapPosterior(half, np.zeros((4, 4)))
+    for bound in (correlated_map_crlb, correlated_map_zzb):
+        with_posterior = bound(trial, grid, offset_std=0.0, posterior=flatter)
+        as_prior = bound(replace(trial, prior_map=half), grid, offset_std=0.0)
+        assert with_posterior == pytest.approx(as_prior, rel=1e-9)
+        # a quarter of the information under a prior that stays: 1.33 times the variance
+        assert with_posterior > 1.2 * bound(trial, grid, offset_std=0.0)

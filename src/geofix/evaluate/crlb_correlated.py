@@ -41,6 +41,10 @@ mission's tens of thousands of beams are refused with the memory estimate
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
@@ -55,14 +59,18 @@ from geofix.evaluate.crlb import (
     trial_error_state,
     trial_offset_model,
 )
+from geofix.maps.error_posterior import MapPosterior
 from geofix.maps.grid import Grid
 from geofix.measurement import beam_gradients
 from geofix.memory import cells_bytes, check_allocation
 from geofix.problem import footprint_xy
 
 __all__ = [
+    "CorrelatedError",
     "check_correlated_error",
     "correlated_map_crlb",
+    "gaussian_covariance",
+    "posterior_problem",
     "reading_covariance",
     "state_covariances",
     "trial_beams",
@@ -76,6 +84,7 @@ def correlated_map_crlb(
     error_corr_m: float = 0.0,
     offset_std=None,
     beam_var=None,
+    posterior: MapPosterior | None = None,
 ) -> float:
     """Bound on the end point's position error with the map error correlated, m^2.
 
@@ -102,6 +111,12 @@ def correlated_map_crlb(
     beam_var : float or array_like, optional
         The primary field's declared measurement variance, its units squared; default
         :func:`geofix.evaluate.crlb.trial_beam_variance`.
+    posterior : MapPosterior, optional
+        The field given the prior map when the map's error was added to the field
+        (:func:`geofix.maps.error_posterior.map_posterior`): the gradients are its mean's
+        and the correlated part of ``R`` its covariance, in place of the prior map's and
+        of ``error_rms`` over ``error_corr_m`` (which are then not used). Without it the
+        field is the prior map less an error independent of the map.
 
     Returns
     -------
@@ -117,9 +132,10 @@ def correlated_map_crlb(
         The readings' covariance would not fit the memory budget.
     """
     check_correlated_error(error_rms, error_corr_m)
+    trial, error = posterior_problem(trial, error_rms, error_corr_m, posterior)
     es = trial_error_state(trial)
     motion = random_walk_motion(trial.sigma_position) if es is None else error_state_motion(es)
-    beams = trial_beams(trial, grid, float(error_rms), beam_var)
+    beams = trial_beams(trial, grid, error.rms, beam_var)
     std, _ = trial_offset_model(trial, grid, offset_std, 0.0)
     n = np.asarray(trial.truth).shape[0]
     extra = 0 if motion.extra_rows is None else motion.extra_rows.shape[0]
@@ -129,7 +145,7 @@ def correlated_map_crlb(
         cells_bytes(size, size, copies=4) + cells_bytes(n * m, n * m, copies=2),
         f"the correlated-error bound's covariance of {size} readings",
     )
-    cov = reading_covariance(beams, std, float(error_rms), float(error_corr_m), n, extra)
+    cov = reading_covariance(beams, std, error, n, extra)
     last, z, cross = state_covariances(motion)
     coef, sample = _coefficients(beams, motion, n)
     flat = z.transpose(0, 2, 1, 3).reshape(n * m, n * m)
@@ -141,6 +157,89 @@ def correlated_map_crlb(
     posterior = last - gain @ cho_solve(cho_factor(cov, overwrite_a=True), gain.T)
     h = motion.position_map
     return float(np.trace(h @ posterior @ h.T))
+
+
+@dataclass(frozen=True)
+class CorrelatedError:
+    """The primary field's map error correlated between readings.
+
+    Parameters
+    ----------
+    rms : float
+        Its standard deviation at a reading, map units (0: none).
+    corr_m : float
+        The correlation length of its Gaussian covariance, metres (with ``covariance``
+        None).
+    covariance : callable, optional
+        ``covariance(points (k, 2)) -> (k, k)``, map units squared, in place of the
+        Gaussian covariance (a map posterior's).
+    """
+
+    rms: float = 0.0
+    corr_m: float = 0.0
+    covariance: Callable[[np.ndarray], np.ndarray] | None = None
+
+    def between(self, points: np.ndarray) -> np.ndarray:
+        """``(k, k)`` the error's covariance between ``points`` (metres), map units squared."""
+        if self.covariance is not None:
+            return np.asarray(self.covariance(points), dtype=float)
+        return gaussian_covariance(points, self.rms, self.corr_m)
+
+
+def posterior_problem(trial, error_rms: float, error_corr_m: float, posterior):
+    """The trial and correlated error a bound takes, with or without a map posterior.
+
+    Parameters
+    ----------
+    trial : Trial
+        The mission.
+    error_rms, error_corr_m : float
+        The Gaussian correlated error's standard deviation (map units) and length
+        (metres), used without ``posterior``.
+    posterior : MapPosterior or None
+        The field given the prior map (:func:`geofix.maps.error_posterior.map_posterior`).
+
+    Returns
+    -------
+    tuple
+        ``(trial, CorrelatedError)``: with ``posterior`` the trial with its prior map the
+        posterior's mean and the error the posterior's covariance; otherwise the trial and
+        the Gaussian error of ``error_rms`` over ``error_corr_m``.
+    """
+    if posterior is None:
+        return trial, CorrelatedError(float(error_rms), float(error_corr_m))
+    error = CorrelatedError(math.sqrt(max(posterior.variance, 0.0)), 0.0, posterior.covariance)
+    return replace(trial, prior_map=posterior.mean), error
+
+
+def gaussian_covariance(points: np.ndarray, rms: float, corr_m: float) -> np.ndarray:
+    """``rms^2 exp(-|q_i - q_j|^2 / (2 L^2))`` between points, built in place.
+
+    Parameters
+    ----------
+    points : numpy.ndarray
+        ``(k, 2)`` positions, metres.
+    rms : float
+        Standard deviation, map units.
+    corr_m : float
+        Correlation length ``L``, metres (> 0).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(k, k)`` covariance, map units squared.
+    """
+    q = np.asarray(points, dtype=float)
+    q = (q - q.mean(axis=0)) / corr_m
+    corr = q @ q.T  # exp(-|qi - qj|^2 / 2) = exp(qi.qj - |qi|^2/2 - |qj|^2/2), in place
+    half = 0.5 * np.sum(q * q, axis=1)
+    corr -= half[:, None]
+    corr -= half[None, :]
+    np.minimum(corr, 0.0, out=corr)
+    corr[np.diag_indices(q.shape[0])] = 0.0
+    np.exp(corr, out=corr)
+    corr *= rms**2
+    return corr
 
 
 def check_correlated_error(error_rms: float, error_corr_m: float) -> None:
@@ -203,7 +302,7 @@ def trial_beams(trial, grid: Grid, error_rms: float, beam_var) -> _Beams:
 
 
 def reading_covariance(
-    beams: _Beams, offset_std, error_rms: float, error_corr_m: float, n: int, extra: int
+    beams: _Beams, offset_std, error: CorrelatedError, n: int, extra: int
 ) -> np.ndarray:
     """``R``: the beams' errors (white, correlated, offsets), then the DVL rows' (unit).
 
@@ -213,9 +312,8 @@ def reading_covariance(
         The trial's valid beams (:func:`trial_beams`).
     offset_std : float or array_like
         Every field's constant offset's prior 1-sigma, map units.
-    error_rms, error_corr_m : float
-        The primary field's correlated map error: standard deviation (map units) and
-        correlation length (metres).
+    error : CorrelatedError
+        The primary field's correlated map error.
     n, extra : int
         Samples, and DVL rows per sample (0: none).
 
@@ -231,19 +329,9 @@ def reading_covariance(
     for field, std in enumerate(np.asarray(offset_std, float)):
         index = np.flatnonzero(beams.field == field)
         beam[np.ix_(index, index)] += std**2
-    if error_rms > 0:
+    if error.rms > 0:
         primary = np.flatnonzero(beams.field == 0)
-        q = beams.footprint[primary]
-        q = (q - q.mean(axis=0)) / error_corr_m
-        corr = q @ q.T  # exp(-|qi - qj|^2 / 2) = exp(qi.qj - |qi|^2/2 - |qj|^2/2), in place
-        half = 0.5 * np.sum(q * q, axis=1)
-        corr -= half[:, None]
-        corr -= half[None, :]
-        np.minimum(corr, 0.0, out=corr)
-        corr[np.diag_indices(primary.size)] = 0.0
-        np.exp(corr, out=corr)
-        corr *= error_rms**2
-        beam[np.ix_(primary, primary)] += corr
+        beam[np.ix_(primary, primary)] += error.between(beams.footprint[primary])
     cov[count:, count:] = np.eye(n * extra)
     return cov
 

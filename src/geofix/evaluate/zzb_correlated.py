@@ -47,10 +47,12 @@ from geofix.evaluate.ambiguity import initial_offset_prior, likelihood_width
 from geofix.evaluate.crlb import _prior_of, trial_offset_model
 from geofix.evaluate.crlb_correlated import (
     check_correlated_error,
+    posterior_problem,
     reading_covariance,
     trial_beams,
 )
 from geofix.evaluate.zzb import ShiftLadder, bound_of_levels, shift_levels
+from geofix.maps.error_posterior import MapPosterior
 from geofix.maps.grid import Grid
 from geofix.memory import cells_bytes, check_allocation
 
@@ -71,6 +73,7 @@ def correlated_map_zzb(
     offset_std=None,
     beam_var=None,
     ladder: ShiftLadder | None = None,
+    posterior: MapPosterior | None = None,
 ) -> float:
     """Ziv–Zakai bound on the end point's position error, the map error correlated, m^2.
 
@@ -96,6 +99,10 @@ def correlated_map_zzb(
         :func:`geofix.evaluate.crlb.trial_beam_variance`.
     ladder : ShiftLadder, optional
         The grids of shifts (default :data:`CORRELATED_LADDER`).
+    posterior : MapPosterior, optional
+        The field given the prior map when the map's error was added to the field: the
+        shifted reads are its mean's and the correlated error its covariance
+        (:func:`geofix.evaluate.crlb_correlated.correlated_map_crlb`).
 
     Returns
     -------
@@ -112,6 +119,7 @@ def correlated_map_zzb(
         The readings' covariance or the shifted reads would not fit the memory budget.
     """
     check_correlated_error(error_rms, error_corr_m)
+    trial, error = posterior_problem(trial, error_rms, error_corr_m, posterior)
     if getattr(trial, "fields", ()):
         raise ValueError("the correlated Ziv-Zakai bound takes one field; the trial has more")
     ladder = ladder or CORRELATED_LADDER
@@ -120,12 +128,12 @@ def correlated_map_zzb(
     if not values.min() > 0:
         return 0.0
     sd = np.sqrt(values)
-    beams = trial_beams(trial, grid, float(error_rms), beam_var)
+    beams = trial_beams(trial, grid, error.rms, beam_var)
     count = beams.sample.size
     check_allocation(cells_bytes(count, count, copies=3), f"the covariance of {count} readings")
     std, _ = trial_offset_model(trial, grid, offset_std, 0.0)
     n = np.asarray(trial.truth).shape[0]
-    cov = reading_covariance(beams, std, float(error_rms), float(error_corr_m), n, 0)
+    cov = reading_covariance(beams, std, error, n, 0)
     factor = cholesky(cov, lower=True, overwrite_a=True)
     prior_map = _prior_of(trial, grid)
     footprint = beams.footprint
