@@ -150,7 +150,7 @@ def build(quick: bool) -> str:
             scen = _with_seabed(base, label, seabed)
             result = campaign(scen, list(methods), trials=trials, jobs=2)
             cell = float(base.map.resample_m) * (seabed or {}).get("cell_factor", 1)
-            bound, still, aware, zzb, independent = _bound_m(scen, seabed, trials)
+            bound, still, aware, zzb, genie, independent = _bound_m(scen, seabed, trials)
             default_nees, still_nees = [], {}
             chosen = {}
             for spec in methods:
@@ -196,6 +196,7 @@ def build(quick: bool) -> str:
                     f"{bound:.1f}",
                     f"{still:.1f}",
                     "-" if zzb is None else f"{zzb:.1f}",
+                    "-" if genie is None else f"{genie:.1f}",
                     "-" if independent is None else f"{independent:.1f}",
                     f"{aware:.1f}",
                     f"{ins_rms:.1f}",
@@ -225,6 +226,7 @@ def build(quick: bool) -> str:
                     "known-offset bound (m)",
                     "imperfect-map bound (m)",
                     "its Ziv-Zakai part (m)",
+                    "its genie part (m)",
                     "the same, error independent of the map (m)",
                     "offset-aware bound (m)",
                     "INS alone (m)",
@@ -294,7 +296,7 @@ def _figure(base) -> str:
 
 def _bound_m(
     scen, seabed: dict | None, trials: int
-) -> tuple[float, float, float, float | None, float | None]:
+) -> tuple[float, float, float, float | None, float | None, float | None]:
     """RMS over the trials of the three imperfect-map bounds at the end point, metres.
 
     All three are error-state bounds on the prior map's information and differ in the
@@ -310,22 +312,25 @@ def _bound_m(
     walk). The offset-aware bound has the offset a random walk at the filters' own walk
     with the map error white (the limit of the problem the default filters set
     themselves). On a gravity map (a few hundred readings) the imperfect-map bound of each
-    trial is the larger of that Cramér-Rao bound and the Ziv-Zakai bound of the same
-    problem (:func:`geofix.evaluate.zzb_correlated.correlated_map_zzb`), which sees the
-    far modes a smooth field and a map error of kilometres leave; the fourth value is
-    the RMS of the latter alone (None on a multibeam map, whose tens of thousands of
-    beams the joint covariance cannot hold).
+    trial is the largest of that Cramér-Rao bound, the Ziv-Zakai bound of the same
+    problem (:func:`geofix.evaluate.zzb_correlated.correlated_map_zzb`) and the genie's
+    posterior variance (:func:`geofix.evaluate.genie_correlated.correlated_map_genie`),
+    which see the far modes a smooth field and a map error of kilometres leave; the
+    fourth and fifth values are the RMS of the latter two alone (None on a multibeam map,
+    whose tens of thousands of beams the joint covariance cannot hold).
 
     The simulator adds the correlated error to the seabed (``prior = seabed + e``), so the
     field given the prior map is the map's posterior
     (:func:`geofix.maps.error_posterior.map_posterior`): the imperfect-map bound of a row
-    with a correlated error takes its mean's gradients and its covariance. The fifth value
-    is the same bound with the seabed taken as the prior map less an error independent of
-    the map (the prior map's gradients, the error's own covariance), as this section
-    reported it before (None without a correlated error, where the two are one).
+    with a correlated error takes its mean's gradients and its covariance. The sixth
+    value is the same bound (without the genie) with the seabed taken as the prior map
+    less an error independent of the map (the prior map's gradients, the error's own
+    covariance), as this section reported it before (None without a correlated error,
+    where the two are one).
     """
     from geofix.evaluate.crlb import imperfect_map_crlb, offset_state_crlb
     from geofix.evaluate.crlb_correlated import correlated_map_crlb
+    from geofix.evaluate.genie_correlated import correlated_map_genie
     from geofix.evaluate.zzb_correlated import correlated_map_zzb
     from geofix.maps.error_posterior import map_posterior
     from geofix.sim.simulate import prepare_map, simulate_trial
@@ -333,7 +338,7 @@ def _bound_m(
     rms = float((seabed or {}).get("error_rms", 0.0))
     corr = float((seabed or {}).get("error_corr_m", 0.0))
     grid = prepare_map(scen)
-    known, still, aware, zzb, independent = [], [], [], [], []
+    known, still, aware, zzb, genie, independent = [], [], [], [], [], []
     global_bound = scen.map.kind == "gravity"
     for index in range(trials):
         trial = simulate_trial(scen, grid, index)
@@ -350,7 +355,8 @@ def _bound_m(
         aware.append(offset_state_crlb(trial, grid, prior_map=True).recursive_var_m2)
         if global_bound:
             zzb.append(correlated_map_zzb(trial, grid, rms, corr, posterior=posterior))
-            still[-1] = max(still[-1], zzb[-1])
+            genie.append(correlated_map_genie(trial, grid, rms, corr, posterior=posterior))
+            still[-1] = max(still[-1], zzb[-1], genie[-1])
             if posterior is not None:
                 independent[-1] = max(independent[-1], correlated_map_zzb(trial, grid, rms, corr))
 
@@ -362,6 +368,7 @@ def _bound_m(
         rms_of(still),
         rms_of(aware),
         rms_of(zzb) if zzb else None,
+        rms_of(genie) if genie else None,
         rms_of(independent) if independent else None,
     )
 
@@ -456,14 +463,19 @@ def _intro(trials: int) -> str:
         "error probability of telling two start positions apart from the whole "
         "mission's readings under that covariance), which sees the far modes a smooth "
         "field and a map error of kilometres leave where the Cramér-Rao bound adds up "
-        "the gradients at the truth alone (its own RMS in the column beside). "
+        "the gradients at the truth alone (its own RMS in the column beside), and the "
+        "genie's: the exact posterior of the start error given the whole mission's "
+        "readings under that covariance, the INS drift told "
+        "(`geofix.evaluate.genie_correlated.correlated_map_genie`; its mean variance over "
+        "the trials bounds every estimator, and it is the posterior itself, every mode of "
+        "it; its RMS in the next column). "
         "The simulator adds the correlated error to the seabed (prior = seabed + error), "
         "so on those rows part of what the prior map shows is its error, and the field "
         "given the map is the map's posterior (`geofix.maps.error_posterior.map_posterior`, "
         "a Wiener filter with the field's power read from the map itself): the "
         "imperfect-map bound reads the gradients of the posterior's mean and charges its "
-        "covariance. The column after the Ziv-Zakai part is the same bound with the "
-        "seabed taken as the prior map less an error independent of the map (the prior "
+        "covariance. The column after the genie's is the same bound (without the genie) "
+        "with the seabed taken as the prior map less an error independent of the map (the prior "
         "map's own gradients), as this section reported it before: on the gravity rows "
         "it credits the map's error with information it does not carry. "
         "The *offset-aware* bound has the offset a random walk at the filters' "

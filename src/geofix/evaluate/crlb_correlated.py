@@ -252,10 +252,14 @@ def check_correlated_error(error_rms: float, error_corr_m: float) -> None:
 
 
 class _Beams:
-    """Every valid beam of a trial as one reading: sample, gradient, field, footprint, var."""
+    """Every valid beam of a trial as one reading: sample, gradient, field, footprint, var.
 
-    def __init__(self, sample, gradient, field, footprint, white) -> None:
+    ``beam`` is each reading's beam index in its field's readings at its sample.
+    """
+
+    def __init__(self, sample, gradient, field, footprint, white, beam) -> None:
         self.sample = np.asarray(sample, int)
+        self.beam = np.asarray(beam, int)
         self.gradient = np.asarray(gradient, float)
         self.field = np.asarray(field, int)
         self.footprint = np.asarray(footprint, float)
@@ -284,10 +288,11 @@ def trial_beams(trial, grid: Grid, error_rms: float, beam_var) -> _Beams:
         hx, hy, hvar, hvalid = _field_gradients(trial, field, prior=True)
         where = np.zeros((*hx.shape, 2))  # uncorrelated: its footprints are not used
         parts.append((hx, hy, np.broadcast_to(hvar, hx.shape), hvalid, where, number))
-    sample, gradient, field_of, footprint, white = [], [], [], [], []
+    sample, gradient, field_of, footprint, white, beam = [], [], [], [], [], []
     for px, py, pvar, pvalid, pfoot, number in parts:
         k, b = np.nonzero(pvalid)
         sample.append(k)
+        beam.append(b)
         gradient.append(np.column_stack([px[k, b], py[k, b]]))
         field_of.append(np.full(k.size, number))
         footprint.append(pfoot[k, b])
@@ -298,6 +303,7 @@ def trial_beams(trial, grid: Grid, error_rms: float, beam_var) -> _Beams:
         np.concatenate(field_of),
         np.concatenate(footprint),
         np.concatenate(white),
+        np.concatenate(beam),
     )
 
 
