@@ -141,6 +141,8 @@ def build(quick: bool) -> str:
     smooth: dict[tuple[str, str], tuple] = {}
     # (scenario, row, best default's RMS m, the INS alone's) where the best ends farther off
     worse_than_ins: list[tuple[str, str, float, float]] = []
+    # (scenario, row, imperfect-map bound m, the INS alone's RMS m, its start spread m)
+    above_ins: list[tuple[str, str, float, float, float]] = []
     for name, rows in ROWS.items():
         base = scenario(name)
         parts.append(f"### `{name}`\n")
@@ -150,7 +152,7 @@ def build(quick: bool) -> str:
             scen = _with_seabed(base, label, seabed)
             result = campaign(scen, list(methods), trials=trials, jobs=2)
             cell = float(base.map.resample_m) * (seabed or {}).get("cell_factor", 1)
-            bound, still, aware, zzb, genie, independent = _bound_m(scen, seabed, trials)
+            bound, still, aware, zzb, genie, independent, spread = _bound_m(scen, seabed, trials)
             default_nees, still_nees = [], {}
             chosen = {}
             for spec in methods:
@@ -176,6 +178,8 @@ def build(quick: bool) -> str:
             ins_rms = chosen[INS][1]
             if best[1] > ins_rms:
                 worse_than_ins.append((name, label, best[1], ins_rms))
+            if still > ins_rms:
+                above_ins.append((name, label, still, ins_rms, spread))
             if label == DRAWN_OFFSET_ROW:
                 drawn[name] = (default_nees, _ratio(best[1], still), still_nees)
             if set(COMMON_OFFSET) <= set(methods):
@@ -243,6 +247,7 @@ def build(quick: bool) -> str:
     parts.append(_common_offset_reading(swath))
     parts.append(_smooth_offset_reading(smooth))
     parts.append(_ins_reading(worse_than_ins))
+    parts.append(_bound_above_ins(above_ins, trials))
     parts.append(_figure(scenario("imperfect_depth")))
     return "\n".join(parts)
 
@@ -296,7 +301,7 @@ def _figure(base) -> str:
 
 def _bound_m(
     scen, seabed: dict | None, trials: int
-) -> tuple[float, float, float, float | None, float | None, float | None]:
+) -> tuple[float, float, float, float | None, float | None, float | None, float]:
     """RMS over the trials of the three imperfect-map bounds at the end point, metres.
 
     All three are error-state bounds on the prior map's information and differ in the
@@ -326,8 +331,10 @@ def _bound_m(
     value is the same bound (without the genie) with the seabed taken as the prior map
     less an error independent of the map (the prior map's gradients, the error's own
     covariance), as this section reported it before (None without a correlated error,
-    where the two are one).
+    where the two are one). The seventh is the RMS over the trials of the INS's start
+    spread, ``sqrt(trace)`` of the start error's prior covariance, metres.
     """
+    from geofix.evaluate.ambiguity import initial_offset_prior
     from geofix.evaluate.crlb import imperfect_map_crlb, offset_state_crlb
     from geofix.evaluate.crlb_correlated import correlated_map_crlb
     from geofix.evaluate.genie_correlated import correlated_map_genie
@@ -338,11 +345,12 @@ def _bound_m(
     rms = float((seabed or {}).get("error_rms", 0.0))
     corr = float((seabed or {}).get("error_corr_m", 0.0))
     grid = prepare_map(scen)
-    known, still, aware, zzb, genie, independent = [], [], [], [], [], []
+    known, still, aware, zzb, genie, independent, spread = [], [], [], [], [], [], []
     global_bound = scen.map.kind == "gravity"
     for index in range(trials):
         trial = simulate_trial(scen, grid, index)
         known.append(imperfect_map_crlb(trial, grid, offset_var=0.0).recursive_var_m2)
+        spread.append(float(np.trace(initial_offset_prior(trial)[1])))
         posterior = None
         if rms > 0:
             prior = grid if trial.prior_map is None else trial.prior_map
@@ -370,6 +378,7 @@ def _bound_m(
         rms_of(zzb) if zzb else None,
         rms_of(genie) if genie else None,
         rms_of(independent) if independent else None,
+        rms_of(spread),
     )
 
 
@@ -587,6 +596,25 @@ def _ins_reading(worse: list[tuple[str, str, float, float]]) -> str:
         head + f"On {len(worse)} row{'s' if len(worse) > 1 else ''} the best default filter ends "
         f"farther off than the INS alone: {rows}. There the map's error, not its information, "
         "decides the fix, and the open work is listed in the imperfect-maps issue.\n"
+    )
+
+
+def _bound_above_ins(rows: list[tuple[str, str, float, float, float]], trials: int) -> str:
+    """The rows whose imperfect-map bound is above the INS alone's RMS over the trials."""
+    if not rows:
+        return ""
+    named = "; ".join(
+        f"`{name}`, {label}: {bound:.1f} m against {ins:.1f} m, the start spread {spread:.1f} m"
+        for name, label, bound, ins, spread in rows
+    )
+    return (
+        f"\nOn {len(rows)} row{'s' if len(rows) > 1 else ''} the imperfect-map bound is above "
+        f"the INS alone's RMS over the {trials} trials ({named}). A bound is an expectation "
+        "over the start errors the INS draws, the INS column a sample of them, whose "
+        "expectation is at least the INS's start spread (the square root of its start "
+        "error's prior variance, which the drift only adds to): these trials drew smaller "
+        "start errors than the INS's own spread, and a bound near that spread says that the "
+        "map, with its error, tells the position little more than the INS does.\n"
     )
 
 
