@@ -28,20 +28,17 @@ with the memory estimate).
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cholesky, solve_triangular
 
 from geofix.evaluate.ambiguity import initial_offset_prior
-from geofix.evaluate.crlb import _prior_of, trial_offset_model
-from geofix.evaluate.crlb_correlated import (
-    check_correlated_error,
-    posterior_problem,
-    reading_covariance,
-    trial_beams,
+from geofix.evaluate.crlb import _prior_of
+from geofix.evaluate.zzb_correlated import (
+    one_field_problem,
+    readings_factor,
+    whitened_misfits,
 )
 from geofix.filters._grid_ops import grid_moments
 from geofix.maps.error_posterior import MapPosterior
 from geofix.maps.grid import Grid
-from geofix.memory import cells_bytes, check_allocation
 
 __all__ = ["GENIE_NODES", "correlated_map_genie"]
 
@@ -51,8 +48,6 @@ GENIE_NODES = 121
 GENIE_EXTENT_SIGMAS = 5.0
 #: A posterior narrower than this many nodes is computed again on a grid about it.
 MIN_SD_NODES = 4.0
-#: Hypotheses whose residuals are held at once.
-SHIFT_BATCH = 4096
 
 
 def correlated_map_genie(
@@ -99,21 +94,15 @@ def correlated_map_genie(
     MemoryBudgetError
         The readings' covariance or the shifted reads would not fit the memory budget.
     """
-    check_correlated_error(error_rms, error_corr_m)
-    trial, error = posterior_problem(trial, error_rms, error_corr_m, posterior)
-    if getattr(trial, "fields", ()):
-        raise ValueError("the correlated genie bound takes one field; the trial has more")
+    trial, error = one_field_problem(
+        trial, error_rms, error_corr_m, posterior, "the correlated genie bound"
+    )
     mean, prior = initial_offset_prior(trial)
     values, axes = np.linalg.eigh(prior)
     if not values.min() > 0:
         return 0.0
     sd = np.sqrt(values)
-    beams = trial_beams(trial, grid, error.rms, beam_var)
-    count = beams.sample.size
-    check_allocation(cells_bytes(count, count, copies=3), f"the covariance of {count} readings")
-    std, _ = trial_offset_model(trial, grid, offset_std, 0.0)
-    n = np.asarray(trial.truth).shape[0]
-    factor = cholesky(reading_covariance(beams, std, error, n, 0), lower=True, overwrite_a=True)
+    beams, factor = readings_factor(trial, grid, error, offset_std, beam_var)
     readings = np.asarray(trial.measured, float)[beams.sample, beams.beam]
     start_error = np.asarray(trial.indicated[0], float) - np.asarray(trial.truth[0], float)
     # a start error e_0 = mean + centre + (u a_0 + v a_1) reads at q + (start_error - e_0)
@@ -139,24 +128,7 @@ class _Reader:
 
     def misfit(self, errors: np.ndarray) -> np.ndarray:
         """``(S,)`` ``r^T R^-1 r`` at each ``(S, 2)`` start error about the prior's mean."""
-        check_allocation(
-            cells_bytes(min(SHIFT_BATCH, errors.shape[0]), self.footprint.shape[0], copies=3),
-            f"the map read at {self.footprint.shape[0]} footprints for {SHIFT_BATCH} shifts",
-        )
-        out = np.empty(errors.shape[0])
-        for start in range(0, errors.shape[0], SHIFT_BATCH):
-            batch = errors[start : start + SHIFT_BATCH]
-            x = self.footprint[None, :, 0] - batch[:, None, 0]
-            y = self.footprint[None, :, 1] - batch[:, None, 1]
-            residual = self.readings[None, :] - self.prior_map.sample(x, y)
-            off = ~np.isfinite(residual).all(axis=1)
-            white = solve_triangular(
-                self.factor, np.where(off[:, None], 0.0, residual).T, lower=True
-            )
-            out[start : start + batch.shape[0]] = np.where(
-                off, np.inf, np.sum(white * white, axis=0)
-            )
-        return out
+        return whitened_misfits(self.prior_map, self.footprint, self.readings, self.factor, errors)
 
 
 def _posterior(reader: _Reader, prior_inverse, centre, axes, width) -> tuple:

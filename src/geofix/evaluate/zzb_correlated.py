@@ -56,7 +56,13 @@ from geofix.maps.error_posterior import MapPosterior
 from geofix.maps.grid import Grid
 from geofix.memory import cells_bytes, check_allocation
 
-__all__ = ["CORRELATED_LADDER", "correlated_map_zzb"]
+__all__ = [
+    "CORRELATED_LADDER",
+    "correlated_map_zzb",
+    "one_field_problem",
+    "readings_factor",
+    "whitened_misfits",
+]
 
 #: The shift grids of the correlated bound: the track bound's.
 CORRELATED_LADDER = ShiftLadder()
@@ -118,23 +124,16 @@ def correlated_map_zzb(
     MemoryBudgetError
         The readings' covariance or the shifted reads would not fit the memory budget.
     """
-    check_correlated_error(error_rms, error_corr_m)
-    trial, error = posterior_problem(trial, error_rms, error_corr_m, posterior)
-    if getattr(trial, "fields", ()):
-        raise ValueError("the correlated Ziv-Zakai bound takes one field; the trial has more")
+    trial, error = one_field_problem(
+        trial, error_rms, error_corr_m, posterior, "the correlated Ziv-Zakai bound"
+    )
     ladder = ladder or CORRELATED_LADDER
     _, prior = initial_offset_prior(trial)
     values, axes = np.linalg.eigh(prior)
     if not values.min() > 0:
         return 0.0
     sd = np.sqrt(values)
-    beams = trial_beams(trial, grid, error.rms, beam_var)
-    count = beams.sample.size
-    check_allocation(cells_bytes(count, count, copies=3), f"the covariance of {count} readings")
-    std, _ = trial_offset_model(trial, grid, offset_std, 0.0)
-    n = np.asarray(trial.truth).shape[0]
-    cov = reading_covariance(beams, std, error, n, 0)
-    factor = cholesky(cov, lower=True, overwrite_a=True)
+    beams, factor = readings_factor(trial, grid, error, offset_std, beam_var)
     prior_map = _prior_of(trial, grid)
     footprint = beams.footprint
     read = prior_map.sample(footprint[:, 0], footprint[:, 1])
@@ -142,6 +141,104 @@ def correlated_map_zzb(
     levels = shift_levels(sd, width, ladder)
     d2 = [_distances(prior_map, footprint, read, factor, axes, u, v) for u, v in levels]
     return bound_of_levels(levels, d2, sd)
+
+
+def one_field_problem(trial, error_rms: float, error_corr_m: float, posterior, bound: str):
+    """The trial and correlated error of a bound that takes one field (:func:`posterior_problem`).
+
+    Parameters
+    ----------
+    trial : Trial
+        The mission.
+    error_rms, error_corr_m : float
+        The Gaussian correlated error (map units, metres), without ``posterior``.
+    posterior : MapPosterior or None
+        The field given the prior map.
+    bound : str
+        The bound's name, for the message.
+
+    Raises
+    ------
+    ValueError
+        An rms without a positive length, or a trial with further fields.
+    """
+    check_correlated_error(error_rms, error_corr_m)
+    trial, error = posterior_problem(trial, error_rms, error_corr_m, posterior)
+    if getattr(trial, "fields", ()):
+        raise ValueError(f"{bound} takes one field; the trial has more")
+    return trial, error
+
+
+def readings_factor(trial, grid: Grid, error, offset_std, beam_var):
+    """The trial's valid beams and the lower Cholesky factor of their covariance.
+
+    Parameters
+    ----------
+    trial : Trial
+        The mission (one field).
+    grid : Grid
+        The seabed.
+    error : CorrelatedError
+        The correlated map error.
+    offset_std : float or None
+        The still offset's prior 1-sigma, map units; default the prior map's.
+    beam_var : float, array_like or None
+        The declared measurement variance, map units squared.
+
+    Returns
+    -------
+    tuple
+        ``(beams, factor (N, N))`` (:func:`geofix.evaluate.crlb_correlated.trial_beams`).
+
+    Raises
+    ------
+    MemoryBudgetError
+        The readings' covariance would not fit the memory budget.
+    """
+    beams = trial_beams(trial, grid, error.rms, beam_var)
+    count = beams.sample.size
+    check_allocation(cells_bytes(count, count, copies=3), f"the covariance of {count} readings")
+    std, _ = trial_offset_model(trial, grid, offset_std, 0.0)
+    n = np.asarray(trial.truth).shape[0]
+    cov = reading_covariance(beams, std, error, n, 0)
+    return beams, cholesky(cov, lower=True, overwrite_a=True)
+
+
+def whitened_misfits(prior_map: Grid, footprint, reference, factor, shifts) -> np.ndarray:
+    """``(S,)`` ``r^T R^-1 r`` of ``r = reference - map(footprint - shift)`` per shift.
+
+    Parameters
+    ----------
+    prior_map : Grid
+        The map the estimator reads.
+    footprint : numpy.ndarray
+        ``(N, 2)`` the readings' footprints, metres.
+    reference : numpy.ndarray
+        ``(N,)`` what the shifted reads are compared with, map units.
+    factor : numpy.ndarray
+        ``(N, N)`` lower Cholesky factor of ``R``.
+    shifts : numpy.ndarray
+        ``(S, 2)`` shifts, metres.
+
+    Returns
+    -------
+    numpy.ndarray
+        The misfits (inf where a shift reads off the map).
+    """
+    check_allocation(
+        cells_bytes(min(SHIFT_BATCH, shifts.shape[0]), footprint.shape[0], copies=3),
+        f"the map read at {footprint.shape[0]} footprints for {SHIFT_BATCH} shifts",
+    )
+    out = np.empty(shifts.shape[0])
+    for start in range(0, shifts.shape[0], SHIFT_BATCH):
+        batch = shifts[start : start + SHIFT_BATCH]
+        x = footprint[None, :, 0] - batch[:, None, 0]
+        y = footprint[None, :, 1] - batch[:, None, 1]
+        diff = reference[None, :] - prior_map.sample(x, y)  # (S, N)
+        off = ~np.isfinite(diff).all(axis=1)
+        white = solve_triangular(factor, np.where(np.isfinite(diff), diff, 0.0).T, lower=True)
+        out[start : start + batch.shape[0]] = np.where(off, np.inf, np.sum(white * white, axis=0))
+    return out
 
 
 def _distances(prior_map: Grid, footprint, read, factor, axes, u, v) -> np.ndarray:
@@ -163,17 +260,4 @@ def _distances(prior_map: Grid, footprint, read, factor, axes, u, v) -> np.ndarr
         Shifts along them, metres.
     """
     shifts = (u[:, None, None] * axes[:, 0] + v[None, :, None] * axes[:, 1]).reshape(-1, 2)
-    check_allocation(
-        cells_bytes(min(SHIFT_BATCH, shifts.shape[0]), footprint.shape[0], copies=3),
-        f"the map read at {footprint.shape[0]} footprints for {SHIFT_BATCH} shifts",
-    )
-    d2 = np.empty(shifts.shape[0])
-    for start in range(0, shifts.shape[0], SHIFT_BATCH):
-        batch = shifts[start : start + SHIFT_BATCH]
-        x = footprint[None, :, 0] - batch[:, None, 0]
-        y = footprint[None, :, 1] - batch[:, None, 1]
-        diff = read[None, :] - prior_map.sample(x, y)  # (S, N)
-        off = ~np.isfinite(diff).all(axis=1)
-        white = solve_triangular(factor, np.where(np.isfinite(diff), diff, 0.0).T, lower=True)
-        d2[start : start + batch.shape[0]] = np.where(off, np.inf, np.sum(white * white, axis=0))
-    return d2.reshape(u.size, v.size)
+    return whitened_misfits(prior_map, footprint, read, factor, shifts).reshape(u.size, v.size)
